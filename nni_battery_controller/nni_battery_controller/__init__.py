@@ -1,0 +1,1 @@
+"""nni_battery_controller."""

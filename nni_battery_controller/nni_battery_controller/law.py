@@ -1,0 +1,192 @@
+"""Angle-feedback battery controllers H3 (unsaturated) and H3-hat (saturated NNI).
+
+Paper section VI, with input u3 = angle deviation d (rad) and scalar state x3:
+
+    w      = x3 - L d - g(d)                 battery power the law asks for (pu)
+    P_ST   = sat_b(w)                        battery power it gets (pu)
+    x3'    = -x3/tau + (K/tau) d   if |w| <  b
+    x3'    = -(alpha/K) x3         if |w| >= b
+
+``b = inf`` is the unsaturated H3 (P_ST = w, closed loop linear); ``b = 0`` is
+no battery. The sampled-data law holds its mode and output for one period T and
+advances x3 with the exact solution of the active mode's linear ODE for d held
+at its sample (zero-order hold). Pure numpy: no ROS import.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from nni_plant_sim.model import SmibParams, require_finite, restoring_energy, restoring_power
+
+
+@dataclass(frozen=True)
+class ControllerParams:
+    """Design parameters of the (saturated) phase-lead NNI controller.
+
+    Parameters
+    ----------
+    tau_s : float
+        Time constant tau of the phase-lead state, s. Must be > 0.
+    gain_k : float
+        Gain K of x3 toward the angle deviation, pu power/rad. Must be > 0 and < L.
+    gain_l : float
+        Direct angle feedback L, pu power/rad. Must be > K (stability condition K - L < 0).
+    alpha : float
+        Decay rate factor of x3 in saturation (x3' = -(alpha/K) x3), pu. Must be > 0.
+    battery_limit_pu : float
+        Battery power limit b, pu; ``inf`` for an unlimited battery, 0 for none. Must be >= 0.
+    """
+
+    tau_s: float = 0.1
+    gain_k: float = 1.0
+    gain_l: float = 1.1
+    alpha: float = 1.0
+    battery_limit_pu: float = math.inf
+
+    def __post_init__(self) -> None:
+        require_finite(self)
+        for name in ("tau_s", "gain_k", "gain_l", "alpha"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"{name} must be finite, got {getattr(self, name)}")
+        if self.tau_s <= 0:
+            raise ValueError(f"tau must be positive (tau_s > 0), got {self.tau_s}")
+        if self.gain_k <= 0:
+            raise ValueError(f"K must be positive (gain_k > 0), got {self.gain_k}")
+        if self.gain_l <= 0:
+            raise ValueError(f"L must be positive (gain_l > 0), got {self.gain_l}")
+        if self.gain_k >= self.gain_l:
+            raise ValueError(
+                f"K must be less than L: the stability condition K - L < 0 "
+                f"(gain_k={self.gain_k}, gain_l={self.gain_l})"
+            )
+        if self.alpha <= 0:
+            raise ValueError(f"alpha must be positive (alpha > 0), got {self.alpha}")
+        if self.battery_limit_pu < 0:
+            raise ValueError(f"battery limit b must be non-negative (b >= 0), got {self.battery_limit_pu}")
+
+
+def saturation_input(x3, angle_dev_rad, ctrl: ControllerParams, plant: SmibParams):
+    """Saturation variable ``w = x3 - L d - g(d)`` in pu; vectorised."""
+    return x3 - ctrl.gain_l * angle_dev_rad - restoring_power(angle_dev_rad, plant)
+
+
+def saturate(w, limit_pu: float):
+    """``sat_b(w)``: ``w`` clipped to ``[-b, b]``; vectorised. NaN maps to 0 (no power)."""
+    return np.nan_to_num(np.clip(w, -limit_pu, limit_pu), nan=0.0)
+
+
+def is_saturated(w, limit_pu: float):
+    """The saturated mode ``|w| >= b``; vectorised."""
+    return np.abs(w) >= limit_pu
+
+
+def x3_rate(x3, angle_dev_rad, saturated, ctrl: ControllerParams):
+    """Controller state derivative x3' in pu/s for the given mode; vectorised."""
+    return np.where(
+        saturated,
+        -(ctrl.alpha / ctrl.gain_k) * x3,
+        (ctrl.gain_k * angle_dev_rad - x3) / ctrl.tau_s,
+    )
+
+
+def q1_matrix(inertia_m: float, gain_k: float, gain_l: float) -> np.ndarray:
+    """Q1 of Theorem 2: W = 1/2 [d', d, x3] Q1 [d', d, x3]^T for the unsaturated loop.
+
+    ``Q1 = [[M, 0, 0], [0, L, -1], [0, -1, 1/K]]``, positive definite exactly when
+    K < L (given M, K > 0). Takes raw gains so that it can be evaluated for gains
+    that ControllerParams rejects.
+    """
+    return np.array([[inertia_m, 0.0, 0.0], [0.0, gain_l, -1.0], [0.0, -1.0, 1.0 / gain_k]])
+
+
+def closed_loop_lyapunov(angle_dev_rad, speed_rad_s, x3, plant: SmibParams, ctrl: ControllerParams):
+    """Candidate W_hat = V1 + V3 - F of the loop (H1, H3-hat) (paper section IV); vectorised.
+
+    ``V1 = (M/2) d'^2``, ``V3 = x3^2 / (2K)`` and F as the paper defines it, by
+    the mode at the current w:
+
+        w <= -b:   F = G(d) - b d
+        |w| < b:   F = x3 d - L d^2 / 2
+        w >= b:    F = G(d) + b d
+
+    with ``G(d) = int_0^d g``. Within a mode W_hat does not increase along
+    trajectories; at a mode switch it jumps (see README, "What the theory
+    promises and what we check").
+    """
+    b = ctrl.battery_limit_pu
+    w = saturation_input(x3, angle_dev_rad, ctrl, plant)
+    unsaturated = x3 * angle_dev_rad - 0.5 * ctrl.gain_l * np.square(angle_dev_rad)
+    with np.errstate(invalid="ignore"):
+        saturated = restoring_energy(angle_dev_rad, plant) + np.sign(w) * b * angle_dev_rad
+    f = np.where(is_saturated(w, b), saturated, unsaturated)
+    return 0.5 * plant.inertia_m * np.square(speed_rad_s) + np.square(x3) / (2.0 * ctrl.gain_k) - f
+
+
+def sampled_step(x3, angle_dev_rad, ctrl: ControllerParams, plant: SmibParams, period_s: float):
+    """One sample of the sampled-data H3-hat; vectorised over trajectories.
+
+    The mode and the output are decided from the sample and held for one period
+    ``period_s``; x3 then advances by the exact solution of that mode's linear
+    ODE with the angle deviation held (zero-order hold).
+
+    Returns
+    -------
+    battery_power_pu, w, saturated, next_x3
+    """
+    b = ctrl.battery_limit_pu
+    w = saturation_input(x3, angle_dev_rad, ctrl, plant)
+    saturated = is_saturated(w, b)
+    decay_unsat = math.exp(-period_s / ctrl.tau_s)
+    decay_sat = math.exp(-ctrl.alpha * period_s / ctrl.gain_k)
+    next_x3 = np.where(
+        saturated,
+        decay_sat * x3,
+        decay_unsat * x3 + (1.0 - decay_unsat) * ctrl.gain_k * angle_dev_rad,
+    )
+    return saturate(w, b), w, saturated, next_x3
+
+
+@dataclass
+class SampledController:
+    """Sampled-data H3-hat for one generator: one call per measurement.
+
+    Parameters
+    ----------
+    plant : SmibParams
+        Supplies delta_bar and P_max for g(d).
+    ctrl : ControllerParams
+        Gains and the battery limit b.
+    period_s : float
+        Sampling period T = 1/fs in s. Must be > 0.
+    x3 : float
+        Controller state, pu; starts at 0 (the pre-fault steady state).
+    """
+
+    plant: SmibParams
+    ctrl: ControllerParams
+    period_s: float
+    x3: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.period_s) and self.period_s > 0):
+            raise ValueError(f"sampling period must be finite and positive, got {self.period_s}")
+
+    def reset(self) -> None:
+        """Back to the pre-fault steady state x3 = 0 (used when data resumes after a gap)."""
+        self.x3 = 0.0
+
+    def step(self, angle_dev_rad: float) -> tuple[float, float, bool]:
+        """Answer one measurement: returns ``(P_ST pu, w pu, saturated)`` and advances x3.
+
+        A non-finite measurement must be dropped by the caller; here it raises
+        ValueError rather than poison x3.
+        """
+        if not math.isfinite(angle_dev_rad):
+            raise ValueError(f"angle deviation must be finite, got {angle_dev_rad}")
+        power, w, saturated, next_x3 = sampled_step(self.x3, angle_dev_rad, self.ctrl, self.plant, self.period_s)
+        self.x3 = float(next_x3)
+        return float(power), float(w), bool(saturated)

@@ -1,0 +1,303 @@
+"""Offline closed-loop simulation of the SMIB generator with the battery controller.
+
+Two time models of the same loop:
+
+* :func:`simulate_continuous`: the paper's continuous-time H3-hat. The switching
+  rule is discontinuous at |w| = b, so the switching instants are located as
+  events of an adaptive integrator (scipy's DOP853) and the mode changes there.
+* :func:`simulate_sampled`: what runs in the controller node: the law sampled at
+  ``rate_hz`` (mode and output held between samples, x3 discretised exactly), the
+  plant integrated with the fixed-step RK4 of :mod:`nni_plant_sim.integrators`
+  that the plant node uses too.
+
+Pure numpy/scipy: no ROS import.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from nni_battery_controller.law import (
+    ControllerParams,
+    closed_loop_lyapunov,
+    is_saturated,
+    sampled_step,
+    saturate,
+    saturation_input,
+    x3_rate,
+)
+from nni_plant_sim.integrators import advance
+from nni_plant_sim.model import SmibParams, swing_rhs
+
+#: Beyond half a turn from equilibrium the machine has slipped a pole.
+POLE_SLIP_RAD = math.pi
+#: Band around equilibrium that counts as "returned", rad (about 1 degree).
+SETTLE_BAND_RAD = 0.02
+#: A run that switches mode more often than this is chattering (a sliding mode
+#: the event-located simulation does not resolve); it stops with an error.
+MAX_SWITCHES = 10_000
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Closed-loop samples on a time grid. Arrays share shape (n,).
+
+    Attributes
+    ----------
+    t_s : time since the fault, s.
+    delta_rad : rotor angle delta, rad.
+    speed_rad_s : speed deviation delta' = omega - omega0, rad/s.
+    x3 : controller state, pu.
+    battery_power_pu : battery power change P_ST applied from this instant, pu.
+    w : saturation variable (what the law asks the battery for), pu.
+    saturated : mode |w| >= b in force from this instant.
+    switch_times_s : instants where the mode changed, located as events
+        (continuous runs; |w| = b there). Empty for sampled runs, whose mode
+        changes only at samples.
+    """
+
+    plant: SmibParams
+    ctrl: ControllerParams
+    t_s: np.ndarray
+    delta_rad: np.ndarray
+    speed_rad_s: np.ndarray
+    x3: np.ndarray
+    battery_power_pu: np.ndarray
+    w: np.ndarray
+    saturated: np.ndarray
+    switch_times_s: np.ndarray
+
+    @property
+    def angle_dev_rad(self) -> np.ndarray:
+        """Angle deviation d = delta - delta_bar, rad."""
+        return self.delta_rad - self.plant.delta_bar_rad
+
+    @property
+    def w_hat(self) -> np.ndarray:
+        """Closed-loop Lyapunov candidate W_hat along the trajectory, pu*rad."""
+        return closed_loop_lyapunov(self.angle_dev_rad, self.speed_rad_s, self.x3, self.plant, self.ctrl)
+
+
+def _loop_outputs(delta, speed, x3, saturated, plant: SmibParams, ctrl: ControllerParams):
+    """Battery power and w for the given states and (held or current) mode."""
+    w = saturation_input(x3, delta - plant.delta_bar_rad, ctrl, plant)
+    return np.where(saturated, saturate(w, ctrl.battery_limit_pu), w), w
+
+
+def simulate_continuous(
+    plant: SmibParams,
+    ctrl: ControllerParams,
+    scenario,
+    duration_s: float,
+    output_step_s: float = 1e-3,
+    rtol: float = 1e-10,
+    atol: float = 1e-12,
+) -> Trajectory:
+    """Continuous-time closed loop with the mode switches located as events.
+
+    Within a mode the right-hand side is smooth; the integration stops at each
+    event and restarts in the new mode. Three modes, ``s`` the side (+1 for
+    w >= b, -1 for w <= -b):
+
+    * unsaturated (|w| < b): P_ST = w, x3' = (K d - x3)/tau; leaves when |w| reaches b;
+    * saturated (|w| > b): P_ST = s b, x3' = -(alpha/K) x3; leaves when |w| falls to b;
+    * sliding on |w| = b, when each mode's field points into the other (the
+      law would chatter there; a sampled-data law does, at its rate). P_ST = s b
+      (both modes agree on the surface) and x3 moves along the surface, the
+      Filippov solution that the sampled law converges to as its rate grows.
+      Leaves when either field turns back to its own side.
+
+    The paper's rule counts |w| = b as saturated, so sliding is reported as
+    saturated. Scenario breakpoints also stop the integration. Outputs are the
+    dense interpolants sampled every ``output_step_s``.
+    """
+    b = ctrl.battery_limit_pu
+    delta_bar = plant.delta_bar_rad
+    grid = np.linspace(0.0, duration_s, int(round(duration_s / output_step_s)) + 1)
+
+    def w_of(z):
+        return saturation_input(z[2], z[0] - delta_bar, ctrl, plant)
+
+    def w_rates(z):
+        """dw/dt under the unsaturated and the saturated x3 law, pu/s."""
+        # w' = x3' - (L + g'(d)) d', with g'(d) = -P_max cos(d + delta_bar).
+        drift = (ctrl.gain_l - plant.p_max_pu * math.cos(z[0])) * z[1]
+        return x3_rate(z[2], z[0] - delta_bar, False, ctrl) - drift, x3_rate(z[2], z[0] - delta_bar, True, ctrl) - drift
+
+    def rhs(t, z, mode, side, network):
+        w = w_of(z)
+        if mode == UNSATURATED:
+            power, x3_dot = w, x3_rate(z[2], z[0] - delta_bar, False, ctrl)
+        elif mode == SATURATED:
+            power, x3_dot = side * b, x3_rate(z[2], z[0] - delta_bar, True, ctrl)
+        else:  # sliding: keep w on the surface
+            power, x3_dot = side * b, (ctrl.gain_l - plant.p_max_pu * math.cos(z[0])) * z[1]
+        dx = swing_rhs(z[:2], power, plant, *network)
+        return np.array([dx[0], dx[1], x3_dot])
+
+    def events_for(mode, side):
+        """Terminal events that end ``mode``; None when b makes switching impossible."""
+        if not 0.0 < b < math.inf:
+            return None
+        if mode == UNSATURATED:
+            upper = _event(lambda t, z, *_: w_of(z) - b, direction=1)
+            lower = _event(lambda t, z, *_: w_of(z) + b, direction=-1)
+            return [upper, lower]
+        if mode == SATURATED:
+            return [_event(lambda t, z, *_: w_of(z) - side * b, direction=-side)]
+        # Sliding ends when the unsaturated field points inward (side*w'_u < 0) or
+        # the saturated field points outward (side*w'_s > 0).
+        return [
+            _event(lambda t, z, *_: side * w_rates(z)[0], direction=-1),
+            _event(lambda t, z, *_: side * w_rates(z)[1], direction=1),
+        ]
+
+    def mode_at(z, arriving_from):
+        """Mode to continue in at state z, given the mode the run arrives from."""
+        w = w_of(z)
+        if b == 0.0 or (abs(w) > b and arriving_from != SATURATED):
+            return SATURATED, (1.0 if w >= 0 else -1.0)
+        if b == math.inf or abs(w) < b and arriving_from != UNSATURATED:
+            return UNSATURATED, 0.0
+        side = 1.0 if w >= 0 else -1.0
+        rate_unsat, rate_sat = w_rates(z)
+        if side * rate_unsat < 0:
+            return UNSATURATED, 0.0
+        if side * rate_sat > 0:
+            return SATURATED, side
+        return SLIDING, side
+
+    z = np.concatenate((scenario.initial_state(plant), [0.0]))
+    t = 0.0
+    w0 = w_of(z)
+    mode, side = (UNSATURATED, 0.0) if abs(w0) < b else mode_at(z, None)
+    stops = sorted({*(tb for tb in scenario.breakpoints() if 0 < tb < duration_s), duration_s})
+    pieces_t, pieces_z, pieces_sat, switches = [], [], [], []
+    while t < duration_s:
+        stop = next(s for s in stops if s > t)
+        sol = solve_ivp(
+            rhs, (t, stop), z, method="DOP853", rtol=rtol, atol=atol, dense_output=True,
+            events=events_for(mode, side), args=(mode, side, scenario.network(t, plant)),
+        )
+        if sol.status < 0:
+            raise RuntimeError(f"integration failed at t={t:.6f} s: {sol.message}")
+        t_end = sol.t[-1]
+        inside = grid[(grid >= t) & (grid < t_end)] if t_end < duration_s else grid[grid >= t]
+        if inside.size:
+            pieces_t.append(inside)
+            pieces_z.append(sol.sol(inside))
+            pieces_sat.append(np.full(inside.shape, mode != UNSATURATED))
+        z, t = sol.y[:, -1], t_end
+        if sol.status == 1:  # a mode boundary was reached
+            new_mode, side = mode_at(z, mode)
+            if (new_mode == UNSATURATED) != (mode == UNSATURATED):
+                switches.append(t)
+            mode = new_mode
+            if len(switches) > MAX_SWITCHES:
+                raise RuntimeError(
+                    f"more than {MAX_SWITCHES} mode switches by t={t:.6f} s: the loop chatters at |w| = b"
+                )
+    t_all = np.concatenate(pieces_t)
+    z_all = np.concatenate(pieces_z, axis=1)
+    sat_all = np.concatenate(pieces_sat)
+    power, w = _loop_outputs(z_all[0], z_all[1], z_all[2], sat_all, plant, ctrl)
+    return Trajectory(plant, ctrl, t_all, z_all[0], z_all[1], z_all[2], power, w, sat_all, np.array(switches))
+
+
+UNSATURATED, SATURATED, SLIDING = "unsaturated", "saturated", "sliding"
+
+
+def _event(fun, direction: int):
+    """A terminal solve_ivp event function with the given crossing direction."""
+    fun.terminal = True
+    fun.direction = direction
+    return fun
+
+
+def simulate_sampled(
+    plant: SmibParams,
+    ctrl: ControllerParams,
+    scenario,
+    duration_s: float,
+    rate_hz: float,
+    max_step_s: float = 1e-3,
+) -> Trajectory:
+    """Sampled-data closed loop at ``rate_hz``: the controller node's law, offline.
+
+    At each sample t_k = k/rate_hz the controller reads d(t_k), outputs P_ST held
+    over [t_k, t_k+1) and advances x3 exactly; the plant is integrated over the
+    period by :func:`nni_plant_sim.integrators.advance` (RK4, steps <= max_step_s),
+    the very call the plant node makes. Returns the samples t_0 .. t_n.
+    """
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise ValueError(f"controller rate must be finite and positive, got {rate_hz}")
+    period = 1.0 / rate_hz
+    n = int(round(duration_s * rate_hz))
+    t = np.arange(n + 1) * period
+    x = scenario.initial_state(plant)
+    x3 = 0.0
+    states = np.empty((n + 1, 3))
+    outputs = np.empty((n + 1, 3))
+    for k in range(n + 1):
+        power, w, saturated, next_x3 = sampled_step(x3, x[0] - plant.delta_bar_rad, ctrl, plant, period)
+        states[k] = (x[0], x[1], x3)
+        outputs[k] = (power, w, saturated)
+        if k < n:
+            x = advance(t[k], t[k + 1], x, power, plant, scenario, max_step_s)
+            x3 = float(next_x3)
+    return Trajectory(
+        plant, ctrl, t, states[:, 0], states[:, 1], states[:, 2],
+        outputs[:, 0], outputs[:, 1], outputs[:, 2].astype(bool), np.empty(0),
+    )
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """Summary of one run, the keys of ``nni-simulate --json`` and ``nni-demo``'s summary.
+
+    stable: the angle deviation never passed a pole slip (|d| > pi) and ended
+    within ``SETTLE_BAND_RAD`` of zero over the last second of the run.
+    last_saturated_s: last instant with |w| >= b (None if never).
+    settling_time_s: first instant after which |d| stays within the band (None
+    if the run ends outside it).
+    """
+
+    b: float
+    stable: bool
+    final_angle_dev_rad: float
+    max_abs_angle_dev_rad: float
+    max_abs_battery_power_pu: float
+    last_saturated_s: float | None
+    settling_time_s: float | None
+
+    def to_json(self) -> dict:
+        """JSON-ready dict; b = inf is written as the string "inf"."""
+        out = dict(self.__dict__)
+        out["b"] = "inf" if math.isinf(self.b) else self.b
+        return out
+
+
+def assess(traj: Trajectory, settle_band_rad: float = SETTLE_BAND_RAD) -> Outcome:
+    """Summarise a trajectory: synchronism, peaks, saturation and settling."""
+    dev = traj.angle_dev_rad
+    outside = np.flatnonzero(np.abs(dev) > settle_band_rad)
+    settled_from = 0.0 if outside.size == 0 else (
+        traj.t_s[outside[-1] + 1] if outside[-1] + 1 < dev.size else None
+    )
+    last_second = traj.t_s >= traj.t_s[-1] - 1.0
+    stable = bool(np.max(np.abs(dev)) < POLE_SLIP_RAD and np.all(np.abs(dev[last_second]) <= settle_band_rad))
+    # |w| = b at a located switch, which the rule counts as saturated.
+    saturated_instants = np.concatenate((traj.t_s[traj.saturated], traj.switch_times_s))
+    return Outcome(
+        b=traj.ctrl.battery_limit_pu,
+        stable=stable,
+        final_angle_dev_rad=float(dev[-1]),
+        max_abs_angle_dev_rad=float(np.max(np.abs(dev))),
+        max_abs_battery_power_pu=float(np.max(np.abs(traj.battery_power_pu))),
+        last_saturated_s=float(saturated_instants.max()) if saturated_instants.size else None,
+        settling_time_s=None if settled_from is None else float(settled_from),
+    )

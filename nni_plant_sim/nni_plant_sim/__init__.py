@@ -1,0 +1,1 @@
+"""nni_plant_sim."""
