@@ -453,13 +453,10 @@ def _log_run_statics(
     """Log the static styling, parameters, y-flip and Omega boundary of a run."""
     if color is None:
         color = _run_color(recording, label)
-    limit_color = (*color, _LIMIT_ALPHA)
     styles = {
         paths.angle: rr.SeriesLines(colors=color, widths=_LINE_WIDTH_PX, names=f"d {label}"),
         paths.frequency: rr.SeriesLines(colors=color, widths=_LINE_WIDTH_PX, names=f"Δf {label}"),
         paths.power: rr.SeriesLines(colors=color, widths=_LINE_WIDTH_PX, names=f"P_ST {label}"),
-        paths.limit_upper: rr.SeriesLines(colors=limit_color, widths=1.0, names=f"+b {label}"),
-        paths.limit_lower: rr.SeriesLines(colors=limit_color, widths=1.0, names=f"-b {label}"),
         paths.saturation: rr.SeriesLines(
             colors=color, widths=_LINE_WIDTH_PX, names=f"saturated {label}", interpolation_mode="StepAfter"
         ),
@@ -467,6 +464,10 @@ def _log_run_statics(
         paths.phase: rr.Transform3D(scale=[1.0, -1.0, 1.0]),
         paths.parameters: rr.AnyValues(b=b, f0_hz=f0_hz),
     }
+    if math.isfinite(b):
+        limit_color = (*color, _LIMIT_ALPHA)
+        styles[paths.limit_upper] = rr.SeriesLines(colors=limit_color, widths=1.0, names=f"+b {label}")
+        styles[paths.limit_lower] = rr.SeriesLines(colors=limit_color, widths=1.0, names=f"-b {label}")
     for path, archetype in styles.items():
         recording.log(path, archetype, static=True)
     # The trajectory's colour is logged with every segment's row defaults: static.

@@ -1,0 +1,104 @@
+"""Command-line plumbing shared by nni-simulate, nni-demo and nni-replay.
+
+Bad input gets one line on stderr naming the problem and a non-zero exit, never
+a traceback; output files appear whole or not at all. No ROS import.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+#: Exit status for bad input (as argparse uses).
+EXIT_USAGE = 2
+
+
+class CliError(Exception):
+    """A user-facing error: printed as one line, exit status ``EXIT_USAGE``."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """ArgumentParser whose errors are one line (``prog: error: ...``), exit 2."""
+
+    def error(self, message: str) -> None:  # noqa: D102 - argparse API
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def battery_limit(text: str) -> float:
+    """argparse type for a battery limit b in pu: a number >= 0 or ``inf``."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"battery limit must be a number >= 0 or 'inf', got {text!r}") from None
+    if math.isnan(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"battery limit must be a number >= 0 or 'inf', got {text!r}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """argparse type for a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """argparse type for any finite number."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def writable_output(text: str) -> Path:
+    """argparse type for an output file whose folder exists and is writable."""
+    path = Path(text)
+    folder = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a directory, expected a file path")
+    if not folder.is_dir():
+        raise argparse.ArgumentTypeError(f"output folder {folder} does not exist")
+    if not os.access(folder, os.W_OK):
+        raise argparse.ArgumentTypeError(f"output folder {folder} is not writable")
+    return path
+
+
+@contextmanager
+def atomic_output(path: Path, mode: str = "w"):
+    """Open a temporary file beside ``path``; rename it over ``path`` only on success."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+    try:
+        with os.fdopen(fd, mode) as handle:
+            yield handle
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def run_cli(main_body, prog: str) -> int:
+    """Run ``main_body()``; turn expected failures into one line and an exit status.
+
+    CliError, ValueError (invalid parameters) and OSError (files) become
+    ``prog: error: message``; Ctrl-C exits 130 quietly.
+    """
+    try:
+        return main_body() or 0
+    except (CliError, ValueError, OSError) as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE if isinstance(exc, (CliError, ValueError)) else 1
+    except KeyboardInterrupt:
+        return 130

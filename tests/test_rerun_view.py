@@ -1,0 +1,210 @@
+"""Round-trip tests of the Rerun views: write .rrd files, verify them, read them back."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+from rerun.chunk import RrdReader
+
+from nni_msgs_adapter.rerun_view import (
+    LiveLogger,
+    blueprint,
+    log_trajectory,
+    open_recording,
+    run_paths,
+)
+
+RERUN_CLI = Path(sys.executable).parent / "rerun"
+TIMELINE = "sim_time"
+N_SAMPLES = 5000
+RUNS = {"b=0.3": 0.3, "b=inf": math.inf}
+
+
+def damped_run(b: float, n: int = N_SAMPLES) -> dict[str, np.ndarray]:
+    """Synthetic damped swing: time (s), d (rad), d' (rad/s), P_ST (pu), flags, W_hat."""
+    t = np.linspace(0.0, 5.0, n)
+    omega_n, zeta = 2.0 * math.pi * 1.2, 0.15
+    envelope = 0.2 * np.exp(-zeta * omega_n * t)
+    d = envelope * np.cos(omega_n * t)
+    d_dot = np.gradient(d, t)
+    w = -1.1 * d - 0.4 * d_dot / omega_n
+    return {
+        "t_s": t,
+        "angle_dev_rad": d,
+        "speed_dev_rad_s": d_dot,
+        "battery_power_pu": np.clip(w, -b, b),
+        "saturated": np.abs(w) >= b,
+        "w_hat": 0.5 * d_dot**2 / omega_n**2 + 0.5 * d**2,
+    }
+
+
+def omega_ellipse(m: int = 200) -> np.ndarray:
+    """An open (m, 2) stand-in for the boundary of Omega (rad, rad/s)."""
+    phi = np.linspace(0.0, 2.0 * math.pi, m, endpoint=False)
+    return np.column_stack([1.2 * np.cos(phi), 3.5 * np.sin(phi)])
+
+
+def write_batch(path: Path) -> dict[str, dict[str, np.ndarray]]:
+    recording, url = open_recording("nni_test_batch", ("save", path))
+    assert url is None
+    runs = {label: damped_run(b) for label, b in RUNS.items()}
+    for label, b in RUNS.items():
+        log_trajectory(recording, label, **runs[label], b=b, f0_hz=50.0, omega_boundary=omega_ellipse())
+    recording.flush()
+    recording.disconnect()
+    return runs
+
+
+def write_live(path: Path, segment_samples: int = 40) -> dict[str, dict[str, np.ndarray]]:
+    recording, _ = open_recording("nni_test_live", ("save", path))
+    runs = {label: damped_run(b, n=1001) for label, b in RUNS.items()}
+    for label, b in RUNS.items():
+        logger = LiveLogger(recording, label, b, 50.0, omega_ellipse(), segment_samples=segment_samples)
+        run = runs[label]
+        for k in range(run["t_s"].size):
+            logger.log(*(run[key][k] for key in run))
+        logger.flush()
+    recording.flush()
+    recording.disconnect()
+    return runs
+
+
+def read_entities(path: Path) -> dict[str, list[pa.RecordBatch]]:
+    """Group the record batches of the first recording in ``path`` by entity path."""
+    batches: dict[str, list[pa.RecordBatch]] = {}
+    for chunk in RrdReader(path).stream():
+        batches.setdefault(chunk.entity_path, []).append(chunk.to_record_batch())
+    return batches
+
+
+def temporal_column(batches: list[pa.RecordBatch], column: str) -> tuple[np.ndarray, list]:
+    """Concatenate a component column over the time-stamped batches, sorted by time (s)."""
+    times, values = [], []
+    for batch in batches:
+        if TIMELINE in batch.schema.names:
+            times.append(batch.column(TIMELINE).cast(pa.int64()).to_numpy() * 1e-9)
+            values.extend(batch.column(column).to_pylist())
+    t = np.concatenate(times)
+    order = np.argsort(t, kind="stable")
+    return t[order], [values[i] for i in order]
+
+
+def scalars(batches: list[pa.RecordBatch]) -> tuple[np.ndarray, np.ndarray]:
+    t, values = temporal_column(batches, "Scalars:scalars")
+    assert all(len(v) == 1 for v in values)
+    return t, np.array([v[0] for v in values])
+
+
+def static_value(batches: list[pa.RecordBatch], column: str) -> list:
+    static = [b for b in batches if TIMELINE not in b.schema.names and column in b.schema.names]
+    assert len(static) == 1
+    return static[0].column(column).to_pylist()[-1]
+
+
+@pytest.fixture(scope="module")
+def batch_file(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    path = tmp_path_factory.mktemp("rerun") / "batch.rrd"
+    return path, write_batch(path)
+
+
+@pytest.fixture(scope="module")
+def live_file(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
+    path = tmp_path_factory.mktemp("rerun") / "live.rrd"
+    return path, write_live(path)
+
+
+@pytest.mark.parametrize("which", ["batch_file", "live_file"])
+def test_rrd_verify(which: str, request: pytest.FixtureRequest) -> None:
+    path, _ = request.getfixturevalue(which)
+    result = subprocess.run([RERUN_CLI, "rrd", "verify", path], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+
+
+@pytest.mark.parametrize("which", ["batch_file", "live_file"])
+def test_scalars_round_trip(which: str, request: pytest.FixtureRequest) -> None:
+    path, runs = request.getfixturevalue(which)
+    entities = read_entities(path)
+    for label, b in RUNS.items():
+        run, paths = runs[label], run_paths(label)
+        expected = {
+            paths.angle: run["angle_dev_rad"],
+            paths.frequency: run["speed_dev_rad_s"] / (2.0 * math.pi),
+            paths.power: run["battery_power_pu"],
+            paths.saturation: run["saturated"].astype(float),
+            paths.w_hat: run["w_hat"],
+        }
+        for path_, values in expected.items():
+            t, got = scalars(entities[path_])
+            np.testing.assert_allclose(t, run["t_s"], rtol=0, atol=1e-9)
+            np.testing.assert_allclose(got, values, rtol=1e-12, atol=0)
+        assert static_value(entities[paths.parameters], "b") == [b]
+        assert static_value(entities[paths.parameters], "f0_hz") == [50.0]
+        if math.isfinite(b):
+            for path_, limit in ((paths.limit_upper, b), (paths.limit_lower, -b)):
+                t, got = scalars(entities[path_])
+                assert t[0] == pytest.approx(run["t_s"][0]) and t[-1] == pytest.approx(run["t_s"][-1])
+                np.testing.assert_array_equal(got, limit)
+        else:
+            assert paths.limit_upper not in entities and paths.limit_lower not in entities
+
+
+@pytest.mark.parametrize("which", ["batch_file", "live_file"])
+def test_phase_portrait_round_trip(which: str, request: pytest.FixtureRequest) -> None:
+    path, runs = request.getfixturevalue(which)
+    entities = read_entities(path)
+    for label in RUNS:
+        run, paths = runs[label], run_paths(label)
+        t, strips = temporal_column(entities[paths.trajectory], "LineStrips2D:strips")
+        assert t[-1] == pytest.approx(run["t_s"][-1])
+        # Each row holds one segment; consecutive segments share their end point.
+        segments = [np.array(row[0]) for row in strips]
+        for previous, current in zip(segments, segments[1:]):
+            np.testing.assert_array_equal(previous[-1], current[0])
+        joined = np.vstack([segments[0]] + [s[1:] for s in segments[1:]])
+        expected = np.column_stack([run["angle_dev_rad"], run["speed_dev_rad_s"]])
+        np.testing.assert_allclose(joined, expected, rtol=1e-6, atol=1e-6)  # float32 points
+
+        boundary = np.array(static_value(entities[paths.omega_boundary], "LineStrips2D:strips")[0])
+        np.testing.assert_allclose(boundary[:-1], omega_ellipse(), rtol=1e-6, atol=1e-6)
+        np.testing.assert_array_equal(boundary[0], boundary[-1])
+
+
+def test_batch_and_live_write_same_entities(batch_file: tuple, live_file: tuple) -> None:
+    batch, live = set(read_entities(batch_file[0])), set(read_entities(live_file[0]))
+    assert batch == live
+    expected = {p for label in RUNS for p in run_paths(label)}
+    expected -= {run_paths("b=inf").limit_upper, run_paths("b=inf").limit_lower}
+    assert expected <= batch
+
+
+def test_blueprint_is_stored(batch_file: tuple) -> None:
+    assert len(RrdReader(batch_file[0]).blueprints()) == 1
+
+
+def test_live_segments_are_bounded(tmp_path: Path) -> None:
+    runs = write_live(tmp_path / "live.rrd", segment_samples=10)
+    strips = read_entities(tmp_path / "live.rrd")[run_paths("b=0.3").trajectory]
+    _, rows = temporal_column(strips, "LineStrips2D:strips")
+    assert max(len(row[0]) for row in rows) == 11
+    assert len(rows) == math.ceil((runs["b=0.3"]["t_s"].size - 1) / 10)
+
+
+def test_invalid_inputs() -> None:
+    recording, _ = open_recording("nni_test_invalid", ("save", "/dev/null"))
+    run = damped_run(0.3, n=10)
+    run["w_hat"] = run["w_hat"][:-1]
+    with pytest.raises(ValueError, match="common"):
+        log_trajectory(recording, "bad", **run, b=0.3, f0_hz=50.0)
+    with pytest.raises(ValueError, match="sink"):
+        open_recording("nni_test_invalid", ("print", None))
+    recording.disconnect()
+
+
+def test_blueprint_builds_with_bounds() -> None:
+    assert blueprint(phase_bounds=((-1.3, 1.3), (-4.0, 4.0))) is not None
