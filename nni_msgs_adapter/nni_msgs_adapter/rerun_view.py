@@ -31,6 +31,7 @@ trajectory while the amount of data per update stays bounded.
 from __future__ import annotations
 
 import math
+import urllib.parse
 from typing import NamedTuple
 
 import numpy as np
@@ -39,6 +40,9 @@ import rerun.blueprint as rrb
 
 #: Default number of samples per phase-portrait strip segment (-).
 PHASE_SEGMENT_SAMPLES = 50
+
+#: Static phase-portrait axes (with unit ticks in its ``ticks`` child).
+PHASE_AXES_PATH = "/phase_portrait/axes"
 
 #: Run colours (RGB), assigned in order of first use within a recording.
 PALETTE = (
@@ -56,6 +60,9 @@ PALETTE = (
 
 _LIMIT_ALPHA = 150
 _OMEGA_COLOR = (200, 200, 200)
+_AXES_COLOR = (120, 120, 120)
+# 2D views draw y down; this transform makes d' point up.
+_Y_UP = rr.Transform3D(scale=[1.0, -1.0, 1.0])
 _LINE_WIDTH_PX = 1.5
 _STRIP_RADIUS_PX = 1.0
 _assigned_colors: dict[str, dict[str, tuple[int, int, int]]] = {}
@@ -159,7 +166,7 @@ def blueprint(
             phase_view,
             column_shares=[3, 2],
         ),
-        rrb.TimePanel(timeline=timeline, play_state="Following"),
+        rrb.TimePanel(timeline=timeline, play_state="Following", state="Collapsed"),
         rrb.BlueprintPanel(state="Collapsed"),
         rrb.SelectionPanel(state="Collapsed"),
     )
@@ -206,7 +213,7 @@ def open_recording(
     elif kind == "serve":
         grpc_url = recording.serve_grpc(grpc_port=target)
         rr.serve_web_viewer(open_browser=False)
-        url = f"http://localhost:9090/?url={grpc_url}"
+        url = f"http://localhost:9090/?url={urllib.parse.quote(grpc_url, safe='')}"
     elif kind == "spawn":
         recording.spawn()
     else:
@@ -461,7 +468,7 @@ def _log_run_statics(
             colors=color, widths=_LINE_WIDTH_PX, names=f"saturated {label}", interpolation_mode="StepAfter"
         ),
         paths.w_hat: rr.SeriesLines(colors=color, widths=_LINE_WIDTH_PX, names=f"W_hat {label}"),
-        paths.phase: rr.Transform3D(scale=[1.0, -1.0, 1.0]),
+        paths.phase: _Y_UP,
         paths.parameters: rr.AnyValues(b=b, f0_hz=f0_hz),
     }
     if math.isfinite(b):
@@ -482,16 +489,41 @@ def _log_run_statics(
             raise ValueError("omega_boundary must have shape (m, 2)")
         if not np.array_equal(boundary[0], boundary[-1]):
             boundary = np.vstack([boundary, boundary[:1]])
-        recording.log(
-            paths.omega_boundary,
-            rr.LineStrips2D(
-                [boundary],
-                colors=_OMEGA_COLOR,
-                radii=rr.components.Radius.ui_points(_STRIP_RADIUS_PX),
-                labels=f"Ω {label}",
-            ),
-            static=True,
-        )
+        radius = rr.components.Radius.ui_points(_STRIP_RADIUS_PX)
+        recording.log(paths.omega_boundary, rr.LineStrips2D([boundary], colors=_OMEGA_COLOR, radii=radius), static=True)
+        _log_phase_axes(recording, boundary)
+
+
+def _log_phase_axes(recording: rr.RecordingStream, boundary: np.ndarray) -> None:
+    """
+    Draw the phase-portrait axes with unit ticks over the extent of ``boundary``.
+
+    The axes go to the static entities :data:`PHASE_AXES_PATH` and its
+    ``ticks`` child; the last boundary logged sets their extent.
+
+    Parameters
+    ----------
+    recording : rerun.RecordingStream
+        Target recording.
+    boundary : numpy.ndarray
+        Points ``(d, d')`` in rad and rad/s, shape ``(m, 2)``.
+    """
+    lo = np.minimum(np.floor(boundary.min(axis=0)), -1.0)
+    hi = np.maximum(np.ceil(boundary.max(axis=0)), 1.0)
+    axes = [[[lo[0], 0.0], [hi[0], 0.0]], [[0.0, lo[1]], [0.0, hi[1]]]]
+    ticks, labels = [], []
+    for axis, unit in enumerate(("rad", "rad/s")):
+        for k in np.arange(lo[axis], hi[axis] + 1.0):
+            if k != 0.0:
+                ticks.append([k, 0.0] if axis == 0 else [0.0, k])
+                labels.append(f"{k:g} {unit}" if k == hi[axis] else f"{k:g}")
+    radius = rr.components.Radius.ui_points(0.5)
+    recording.log(PHASE_AXES_PATH, _Y_UP, rr.LineStrips2D(axes, colors=_AXES_COLOR, radii=radius), static=True)
+    recording.log(
+        f"{PHASE_AXES_PATH}/ticks",
+        rr.Points2D(ticks, colors=_AXES_COLOR, radii=rr.components.Radius.ui_points(2.0), labels=labels, show_labels=True),
+        static=True,
+    )
 
 
 def _run_color(recording: rr.RecordingStream, label: str) -> tuple[int, int, int]:

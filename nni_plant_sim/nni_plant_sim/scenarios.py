@@ -118,3 +118,34 @@ SCENARIOS = {
     "mechanical_step": MechanicalPowerStep,
     "transfer_limit_fault": TransferLimitFault,
 }
+
+
+@dataclass(frozen=True)
+class StartingAt:
+    """A scenario whose fault starts at ``start_s`` on a longer time axis.
+
+    Before ``start_s`` the network has its pre-fault values; from then on it is
+    ``scenario`` shifted in time. The plant node uses it when the fault is
+    triggered by a service call at an arbitrary instant.
+    """
+
+    scenario: Scenario
+    start_s: float
+
+    def initial_state(self, plant: SmibParams) -> np.ndarray:
+        """The scenario's state at its start."""
+        return self.scenario.initial_state(plant)
+
+    def network(self, t_s: float, plant: SmibParams) -> tuple[float, float]:
+        """Pre-fault values before ``start_s``, then the shifted scenario."""
+        if t_s < self.start_s:
+            return plant.p_mech_pu, plant.p_max_pu
+        return self.scenario.network(t_s - self.start_s, plant)
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """The start and the scenario's own breakpoints, shifted."""
+        return (self.start_s, *(self.start_s + tb for tb in self.scenario.breakpoints()))
+
+
+#: Before any fault: the pre-fault network at every time.
+PRE_FAULT = StartingAt(InitialAngle(), math.inf)

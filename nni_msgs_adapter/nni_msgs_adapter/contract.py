@@ -1,0 +1,226 @@
+"""The message contract: topic names, QoS, and conversions to common_interfaces messages.
+
+Every node, the logger, replay and the tests take names and QoS from here, so the
+contract is defined once. Topic names are relative: start a generator's nodes in
+a namespace (``--ros-args -r __ns:=/gen1``) and its topics follow. Message types
+are common_interfaces only (no custom .msg: the pip path cannot build them).
+
+Mapping (see README, "Topics"):
+
+* ``pmu`` sensor_msgs/JointState, joint "rotor": position = rotor angle delta
+  (rad, against the infinite bus), velocity = speed deviation omega - omega0
+  (rad/s), effort = electrical power P_E (pu). Stamp = measurement instant.
+* ``battery/command`` sensor_msgs/JointState, joint "battery": effort = battery
+  power change P_ST (pu). Stamp = stamp of the measurement it answers.
+* ``plant/state`` sensor_msgs/JointState, joint "rotor": true delta, speed
+  deviation, and effort = battery power P_ST acting on the rotor (pu), at each
+  reporting instant (noise-free, for analysis).
+* ``controller/state`` sensor_msgs/JointState, one "joint" per internal signal,
+  values in ``position``: x3 (pu), w (pu), battery_power (pu), saturated (0/1),
+  w_hat (pu rad), battery_limit (pu, may be inf).
+* ``plant/invariant_set`` geometry_msgs/PolygonStamped, latched: boundary of the
+  invariant set Omega in the (angle deviation rad, speed deviation rad/s) plane.
+* ``diagnostics`` diagnostic_msgs/DiagnosticArray: loop health and counters.
+* ``/clock`` rosgraph_msgs/Clock in lockstep mode (absolute: one simulated clock).
+* ``plant/start_fault`` std_srvs/Trigger service: start the fault scenario now.
+"""
+
+from __future__ import annotations
+
+import math
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Point32, PolygonStamped
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+
+TOPIC_PMU = "pmu"
+TOPIC_BATTERY_COMMAND = "battery/command"
+TOPIC_PLANT_STATE = "plant/state"
+TOPIC_CONTROLLER_STATE = "controller/state"
+TOPIC_INVARIANT_SET = "plant/invariant_set"
+TOPIC_DIAGNOSTICS = "diagnostics"
+TOPIC_CLOCK = "/clock"
+SERVICE_START_FAULT = "plant/start_fault"
+
+ROTOR_JOINT = "rotor"
+BATTERY_JOINT = "battery"
+CONTROLLER_SIGNALS = ("x3", "w", "battery_power", "saturated", "w_hat", "battery_limit")
+
+# Measurements and commands: RELIABLE because the lockstep handshake needs every
+# sample answered and a lost command is a missed control action; on localhost
+# reliability costs no round trip unless a sample is lost. KEEP_LAST 10 bounds
+# memory and lets a briefly slow subscriber catch up without unbounded queues;
+# VOLATILE because an old sample is worthless to a controller that (re)starts.
+SAMPLE_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=10,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
+)
+# States for analysis and logging: same as samples, deeper so that a logger that
+# stalls briefly (disk) loses nothing at 1000 samples/s.
+STATE_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=100,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
+)
+# Description published once and kept for late joiners (logger, viewers): latched.
+LATCHED_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
+# Diagnostics as ROS tools expect them: reliable, volatile, a small queue.
+DIAGNOSTICS_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=10,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
+)
+# /clock: only the latest time matters (KEEP_LAST 1); RELIABLE offered so both
+# reliable and best-effort (rclpy's TimeSource) subscribers match.
+CLOCK_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1,
+    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
+)
+
+#: topic -> (message type name, message class, QoS), everything the logger records.
+TOPICS = {
+    TOPIC_PMU: ("sensor_msgs/msg/JointState", JointState, SAMPLE_QOS),
+    TOPIC_BATTERY_COMMAND: ("sensor_msgs/msg/JointState", JointState, SAMPLE_QOS),
+    TOPIC_PLANT_STATE: ("sensor_msgs/msg/JointState", JointState, STATE_QOS),
+    TOPIC_CONTROLLER_STATE: ("sensor_msgs/msg/JointState", JointState, STATE_QOS),
+    TOPIC_INVARIANT_SET: ("geometry_msgs/msg/PolygonStamped", PolygonStamped, LATCHED_QOS),
+    TOPIC_DIAGNOSTICS: ("diagnostic_msgs/msg/DiagnosticArray", DiagnosticArray, DIAGNOSTICS_QOS),
+    TOPIC_CLOCK: ("rosgraph_msgs/msg/Clock", Clock, CLOCK_QOS),
+}
+
+
+def endpoint(topic: str) -> tuple:
+    """``(message class, topic, QoS)``: the arguments of create_publisher / create_subscription."""
+    _, msg_class, qos = TOPICS[topic]
+    return msg_class, topic, qos
+
+
+class ContractError(ValueError):
+    """A message that does not follow the contract (wrong joints, sizes or values)."""
+
+
+def time_from_ns(stamp_ns: int) -> Time:
+    """builtin_interfaces/Time from integer nanoseconds."""
+    return Time(sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)
+
+
+def ns_from_time(stamp: Time) -> int:
+    """Integer nanoseconds from builtin_interfaces/Time."""
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def ns_from_seconds(t_s: float) -> int:
+    """Nanoseconds nearest to ``t_s`` seconds (simulated time stamps)."""
+    return int(round(t_s * 1e9))
+
+
+def pmu_message(stamp_ns: int, delta_rad: float, speed_rad_s: float, p_elec_pu: float) -> JointState:
+    """A PMU measurement as JointState (see module docstring for the mapping)."""
+    msg = JointState()
+    msg.header.stamp = time_from_ns(stamp_ns)
+    msg.header.frame_id = "generator"
+    msg.name = [ROTOR_JOINT]
+    msg.position = [float(delta_rad)]
+    msg.velocity = [float(speed_rad_s)]
+    msg.effort = [float(p_elec_pu)]
+    return msg
+
+
+def pmu_from_message(msg: JointState) -> tuple[int, float, float]:
+    """``(stamp_ns, delta rad, speed deviation rad/s)``; ContractError if malformed."""
+    _expect_joint(msg, ROTOR_JOINT, need_velocity=True)
+    return ns_from_time(msg.header.stamp), msg.position[0], msg.velocity[0]
+
+
+def command_message(stamp_ns: int, battery_power_pu: float) -> JointState:
+    """A battery power command; ``stamp_ns`` is the answered measurement's stamp."""
+    msg = JointState()
+    msg.header.stamp = time_from_ns(stamp_ns)
+    msg.header.frame_id = "battery"
+    msg.name = [BATTERY_JOINT]
+    msg.effort = [float(battery_power_pu)]
+    return msg
+
+
+def command_from_message(msg: JointState) -> tuple[int, float]:
+    """``(answered stamp_ns, battery power pu)``; ContractError if malformed."""
+    if list(msg.name) != [BATTERY_JOINT] or len(msg.effort) != 1:
+        raise ContractError(f"battery command must carry one joint {BATTERY_JOINT!r} with one effort")
+    return ns_from_time(msg.header.stamp), msg.effort[0]
+
+
+def plant_state_message(stamp_ns: int, delta_rad: float, speed_rad_s: float, battery_power_pu: float) -> JointState:
+    """True rotor state; effort is the battery power acting on the rotor (pu)."""
+    return pmu_message(stamp_ns, delta_rad, speed_rad_s, battery_power_pu)
+
+
+def plant_state_from_message(msg: JointState) -> tuple[int, float, float, float]:
+    """``(stamp_ns, delta rad, speed rad/s, battery power pu)``."""
+    _expect_joint(msg, ROTOR_JOINT, need_velocity=True)
+    if len(msg.effort) != 1:
+        raise ContractError("plant state must carry one effort (battery power)")
+    return ns_from_time(msg.header.stamp), msg.position[0], msg.velocity[0], msg.effort[0]
+
+
+def controller_state_message(stamp_ns: int, x3: float, w: float, battery_power_pu: float,
+                             saturated: bool, w_hat: float, battery_limit_pu: float) -> JointState:
+    """The controller's internal signals, named in ``name``, values in ``position``."""
+    msg = JointState()
+    msg.header.stamp = time_from_ns(stamp_ns)
+    msg.header.frame_id = "controller"
+    msg.name = list(CONTROLLER_SIGNALS)
+    msg.position = [float(x3), float(w), float(battery_power_pu), 1.0 if saturated else 0.0,
+                    float(w_hat), float(battery_limit_pu)]
+    return msg
+
+
+def controller_state_from_message(msg: JointState) -> tuple[int, dict]:
+    """``(stamp_ns, {signal name: value})``."""
+    if tuple(msg.name) != CONTROLLER_SIGNALS or len(msg.position) != len(CONTROLLER_SIGNALS):
+        raise ContractError(f"controller state must carry signals {CONTROLLER_SIGNALS}")
+    return ns_from_time(msg.header.stamp), dict(zip(CONTROLLER_SIGNALS, msg.position))
+
+
+def invariant_set_message(stamp_ns: int, boundary) -> PolygonStamped:
+    """Omega's boundary as a polygon: x = angle deviation (rad), y = speed (rad/s)."""
+    msg = PolygonStamped()
+    msg.header.stamp = time_from_ns(stamp_ns)
+    msg.header.frame_id = "phase_plane"
+    msg.polygon.points = [Point32(x=float(x), y=float(y), z=0.0) for x, y in boundary]
+    return msg
+
+
+def diagnostics_message(stamp_ns: int, name: str, hardware_id: str, level: bytes, message: str,
+                        values: dict) -> DiagnosticArray:
+    """One DiagnosticStatus in a DiagnosticArray; ``values`` become KeyValue strings."""
+    status = DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id)
+    status.values = [KeyValue(key=key, value=_format_value(value)) for key, value in values.items()]
+    msg = DiagnosticArray()
+    msg.header.stamp = time_from_ns(stamp_ns)
+    msg.status = [status]
+    return msg
+
+
+def diagnostic_values(msg: DiagnosticArray, name: str) -> dict | None:
+    """The key/value strings of the status called ``name``, or None if absent."""
+    for status in msg.status:
+        if status.name == name:
+            return {kv.key: kv.value for kv in status.values}
+    return None
+
+
+def _format_value(value) -> str:
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
+
+
+def _expect_joint(msg: JointState, joint: str, need_velocity: bool) -> None:
+    if list(msg.name) != [joint] or len(msg.position) != 1 or (need_velocity and len(msg.velocity) != 1):
+        raise ContractError(f"expected one joint {joint!r} with position and velocity, got names {list(msg.name)}")
+    if not all(math.isfinite(v) for v in (*msg.position, *msg.velocity)):
+        raise ContractError(f"non-finite value in {joint!r} measurement")

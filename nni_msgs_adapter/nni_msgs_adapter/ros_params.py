@@ -1,0 +1,82 @@
+"""Declaring and validating node parameters, shared by the plant and controller nodes.
+
+Each parameter is declared once with its type, default, description (with unit)
+and range; the node's own validation (a dataclass constructor raising ValueError
+that names the violated condition) runs on start-up and on every runtime change,
+and an invalid change is rejected with that reason, the old values kept.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+
+
+@dataclass(frozen=True)
+class Spec:
+    """One parameter: name, default (its type is the parameter's), description, range."""
+
+    name: str
+    default: object
+    description: str
+    low: float | None = None
+    high: float | None = None
+    choices: tuple[str, ...] = ()
+    read_only: bool = False
+
+    def descriptor(self) -> ParameterDescriptor:
+        """ParameterDescriptor with the range for numbers and choices in the text."""
+        text = self.description + (f" One of: {', '.join(self.choices)}." if self.choices else "")
+        descriptor = ParameterDescriptor(name=self.name, description=text, read_only=self.read_only)
+        if self.low is not None and self.high is not None:
+            if isinstance(self.default, bool):
+                pass
+            elif isinstance(self.default, int):
+                descriptor.integer_range = [IntegerRange(from_value=int(self.low), to_value=int(self.high), step=0)]
+            elif isinstance(self.default, float) and math.isfinite(self.high):
+                descriptor.floating_point_range = [FloatingPointRange(
+                    from_value=float(self.low), to_value=float(self.high), step=0.0)]
+        return descriptor
+
+
+def declare(node, specs) -> None:
+    """Declare every spec on ``node`` (overrides from YAML / command line apply)."""
+    for spec in specs:
+        node.declare_parameter(spec.name, spec.default, spec.descriptor())
+
+
+def current_values(node, specs) -> dict:
+    """``{name: value}`` of the declared parameters."""
+    return {spec.name: node.get_parameter(spec.name).value for spec in specs}
+
+
+def check_choices(values: dict, specs) -> None:
+    """ValueError naming the first parameter whose value is not among its choices."""
+    for spec in specs:
+        if spec.choices and values[spec.name] not in spec.choices:
+            raise ValueError(f"{spec.name} must be one of {', '.join(spec.choices)}, got {values[spec.name]!r}")
+
+
+def install_validation(node, specs, apply) -> None:
+    """Re-validate every runtime change with ``apply(new_values)``.
+
+    ``apply`` builds and installs the node's configuration from the full value
+    dict, raising ValueError (message = reason) to reject the change; nothing
+    is installed then, so the old values stay.
+    """
+    names = {spec.name for spec in specs}
+
+    def on_set(parameters):
+        proposed = current_values(node, specs)
+        proposed.update({p.name: p.value for p in parameters if p.name in names})
+        try:
+            check_choices(proposed, specs)
+            apply(proposed)
+        except ValueError as exc:
+            node.get_logger().warning(f"rejected parameter change: {exc}")
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(on_set)

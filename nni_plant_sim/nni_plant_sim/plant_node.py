@@ -1,0 +1,333 @@
+"""Plant node: the SMIB generator with a battery, publishing PMU-style measurements.
+
+Thin ROS wrapper around :mod:`nni_plant_sim.model`, :mod:`.scenarios` and
+:mod:`.integrators` (the physics the offline simulation uses). Two time modes:
+
+* ``realtime``: a wall-clock timer at the PMU rate. The physics is advanced to
+  the present instant whenever something happens (a reporting instant, a
+  command arriving), so each battery command acts from the moment it arrives.
+  A command older than ``command_timeout_s`` is dropped to zero power.
+* ``lockstep``: simulated time, published on /clock. The plant publishes the
+  measurement of sample k and advances one reporting period only when the
+  controller's command for sample k has arrived (or after ``lockstep_timeout_s``
+  of wall time, counted, with zero battery power): deterministic, and as fast
+  as the loop can turn.
+
+Topics and QoS: :mod:`nni_msgs_adapter.contract`.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.task import Future
+from rosgraph_msgs.msg import Clock
+from std_srvs.srv import Trigger
+
+from nni_msgs_adapter import contract
+from nni_msgs_adapter.loop_stats import LoopStats
+from nni_msgs_adapter.node_main import run_node
+from nni_msgs_adapter.ros_params import Spec, check_choices, current_values, declare, install_validation
+from nni_plant_sim.integrators import advance
+from nni_plant_sim.model import SmibParams, electrical_power, invariant_set_boundary
+from nni_plant_sim.scenarios import PRE_FAULT, SCENARIOS, StartingAt
+
+PARAMETERS = (
+    Spec("mode", "realtime", "Time mode: realtime (wall clock) or lockstep (simulated /clock).",
+         choices=("realtime", "lockstep")),
+    Spec("pmu_rate_hz", 50.0, "PMU reporting rate, frames/s (IEEE C37.118 practice: 10 to 1000).", 10.0, 1000.0),
+    Spec("integration_step_s", 1e-3, "Largest RK4 step of the swing equation, s.", 1e-6, 0.1),
+    Spec("duration_s", 0.0, "Simulated seconds to run after the start, then exit; 0 runs until stopped.",
+         0.0, 1e9),
+    Spec("fault_at_start", True, "Start the fault scenario at t = 0; false waits for plant/start_fault."),
+    Spec("wait_for_subscribers", 1, "Start only when this many subscribers listen on pmu "
+         "(the controller, the logger); 0 starts at once.", 0, 100),
+    Spec("inertia_h_s", 4.0, "Inertia constant H, s.", 1e-3, 1e3),
+    Spec("damping_pu", 0.0, "Damping D, pu power per rad/s.", 0.0, 1e3),
+    Spec("p_mech_pu", 0.8, "Pre-fault mechanical power P_M, pu (< P_max).", 0.0, 1e3),
+    Spec("p_max_pu", 1.0, "Maximum transfer P_max, pu.", 1e-6, 1e3),
+    Spec("f0_hz", 50.0, "Nominal frequency f0, Hz.", 1.0, 1e3),
+    Spec("scenario", "initial_angle", "Fault scenario.", choices=tuple(SCENARIOS)),
+    Spec("delta0_rad", 0.2, "initial_angle: rotor angle right after the fault, rad.", -10.0, 10.0),
+    Spec("speed0_rad_s", 0.0, "initial_angle: speed deviation right after the fault, rad/s.", -1e3, 1e3),
+    Spec("step_p_mech_pu", 0.95, "mechanical_step: mechanical power during the step, pu.", 0.0, 1e3),
+    Spec("step_duration_s", 1e9, "mechanical_step: length of the step, s.", 1e-6, 1e9),
+    Spec("fault_p_max_pu", 0.0, "transfer_limit_fault: P_max while the fault is on, pu.", 0.0, 1e3),
+    Spec("clearing_time_s", 0.1, "transfer_limit_fault: clearing time, s.", 1e-6, 1e3),
+    Spec("battery_rating_pu", math.inf, "Battery inverter rating: commands are clipped to +-rating, pu.",
+         0.0, math.inf),
+    Spec("noise_angle_std_rad", 0.0, "PMU angle noise standard deviation, rad.", 0.0, 1.0),
+    Spec("noise_speed_std_rad_s", 0.0, "PMU speed noise standard deviation, rad/s.", 0.0, 10.0),
+    Spec("quantisation_rad", 0.0, "PMU angle resolution, rad (0: none).", 0.0, 1.0),
+    Spec("noise_seed", 0, "Seed of the measurement noise generator.", 0, 2**31 - 1),
+    Spec("command_timeout_s", 0.1, "realtime: a battery command older than this is dropped to zero, s.",
+         1e-3, 100.0),
+    Spec("lockstep_timeout_s", 1.0, "lockstep: wall time to wait for a command before applying zero, s.",
+         1e-3, 100.0),
+)
+
+#: Parameters fixed once the run has started (they shape time or the physics).
+FIXED_AFTER_START = {"mode", "pmu_rate_hz", "integration_step_s", "inertia_h_s", "damping_pu", "p_mech_pu",
+                     "p_max_pu", "f0_hz", "scenario", "delta0_rad", "speed0_rad_s", "step_p_mech_pu",
+                     "step_duration_s", "fault_p_max_pu", "clearing_time_s", "wait_for_subscribers"}
+
+
+def plant_from(values: dict) -> SmibParams:
+    """SmibParams from parameter values (ValueError names a violated condition)."""
+    return SmibParams(values["inertia_h_s"], values["damping_pu"], values["p_mech_pu"],
+                      values["p_max_pu"], values["f0_hz"])
+
+
+def scenario_from(values: dict):
+    """The configured fault scenario."""
+    name = values["scenario"]
+    if name == "mechanical_step":
+        return SCENARIOS[name](values["step_p_mech_pu"], values["step_duration_s"])
+    if name == "transfer_limit_fault":
+        return SCENARIOS[name](values["fault_p_max_pu"], values["clearing_time_s"])
+    return SCENARIOS[name](values["delta0_rad"], values["speed0_rad_s"])
+
+
+class PlantNode(Node):
+    """The generator: integrates the swing equation and reports like a PMU."""
+
+    def __init__(self, **kwargs):
+        super().__init__("plant", **kwargs)
+        declare(self, PARAMETERS)
+        values = current_values(self, PARAMETERS)
+        check_choices(values, PARAMETERS)
+        self._plant = plant_from(values)
+        self._fault = scenario_from(values)
+        self._values = values
+        install_validation(self, PARAMETERS, self._apply_runtime_change)
+
+        self._period_s = 1.0 / values["pmu_rate_hz"]
+        self._lockstep = values["mode"] == "lockstep"
+        self._rng = np.random.default_rng(values["noise_seed"])
+        self.done = Future()
+
+        # Physics state: [delta rad, speed deviation rad/s] at simulated time t (s since start).
+        self._t_s = 0.0
+        self._x = np.array([self._plant.delta_bar_rad, 0.0])
+        self._scenario = PRE_FAULT
+        self._battery_power_pu = 0.0
+        self._sample = 0               # index of the next (lockstep: current) reporting instant
+        self._started = False
+        self._awaiting_stamp_ns = None  # lockstep: stamp of the sample whose command we wait for
+        self._stats = LoopStats(self._period_s)
+
+        self._pmu_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_PMU))
+        self._state_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_PLANT_STATE))
+        self._omega_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_INVARIANT_SET))
+        self._diag_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_DIAGNOSTICS))
+        self._clock_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_CLOCK)) if self._lockstep else None
+        command_type, command_topic, command_qos = contract.endpoint(contract.TOPIC_BATTERY_COMMAND)
+        self._command_sub = self.create_subscription(command_type, command_topic, self._on_command, command_qos)
+        self.create_service(Trigger, contract.SERVICE_START_FAULT, self._on_start_fault)
+
+        self._omega_pub.publish(contract.invariant_set_message(
+            self._now_ns(), invariant_set_boundary(self._plant)))
+        self._start_timer = self.create_timer(0.01, self._try_start)
+        self._diag_timer = self.create_timer(1.0, self._publish_diagnostics)
+        self._tick_timer = None
+        self._watchdog = None
+
+    # --- wiring helpers ------------------------------------------------------------------
+
+    def _now_ns(self) -> int:
+        return self.get_clock().now().nanoseconds
+
+    def _apply_runtime_change(self, values: dict) -> None:
+        changed = {k for k, v in values.items() if self._values.get(k) != v}
+        if self._started and changed & FIXED_AFTER_START:
+            raise ValueError(f"{', '.join(sorted(changed & FIXED_AFTER_START))} cannot change during a run")
+        plant_from(values)
+        scenario_from(values)
+        self._values = values
+
+    # --- start ---------------------------------------------------------------------------
+
+    def _try_start(self) -> None:
+        wanted = self._values["wait_for_subscribers"]
+        if self._pmu_pub.get_subscription_count() < wanted:
+            return
+        if wanted > 0 and self._command_sub.get_publisher_count() < 1:
+            return
+        self._start_timer.cancel()
+        self._started = True
+        self._t0_ns = self._now_ns()
+        if self._values["fault_at_start"]:
+            self._start_fault()
+        if self._lockstep:
+            self._watchdog = self.create_timer(min(0.05, self._values["lockstep_timeout_s"] / 4),
+                                               self._check_lockstep_timeout)
+            self._publish_sample()
+        else:
+            self._tick_timer = self.create_timer(self._period_s, self._on_tick)
+            self._on_tick()
+        self.get_logger().info(
+            f"started in {self._values['mode']} mode at {self._values['pmu_rate_hz']:g} frames/s")
+
+    def _start_fault(self) -> None:
+        self._scenario = StartingAt(self._fault, self._t_s)
+        self._x = self._fault.initial_state(self._plant)
+
+    def _on_start_fault(self, request, response):
+        if not self._started:
+            response.success, response.message = False, "the run has not started (waiting for subscribers)"
+        elif self._scenario is not PRE_FAULT:
+            response.success, response.message = False, "the fault has already started"
+        else:
+            self._advance_to_now()
+            self._start_fault()
+            response.success, response.message = True, f"fault started at t = {self._t_s:.6f} s"
+        return response
+
+    # --- physics -------------------------------------------------------------------------
+
+    def _advance_to(self, t_s: float) -> None:
+        if t_s > self._t_s:
+            self._x = advance(self._t_s, t_s, self._x, self._battery_power_pu, self._plant, self._scenario,
+                              self._values["integration_step_s"])
+            self._t_s = t_s
+
+    def _advance_to_now(self) -> None:
+        if not self._lockstep:
+            self._advance_to((self._now_ns() - self._t0_ns) * 1e-9)
+
+    def _measure(self) -> tuple[float, float]:
+        """PMU reading of the current state: noise, then quantisation."""
+        delta, speed = float(self._x[0]), float(self._x[1])
+        if self._values["noise_angle_std_rad"] > 0:
+            delta += self._rng.normal(0.0, self._values["noise_angle_std_rad"])
+        if self._values["noise_speed_std_rad_s"] > 0:
+            speed += self._rng.normal(0.0, self._values["noise_speed_std_rad_s"])
+        if self._values["quantisation_rad"] > 0:
+            delta = round(delta / self._values["quantisation_rad"]) * self._values["quantisation_rad"]
+        return delta, speed
+
+    def _publish_measurement(self, stamp_ns: int) -> None:
+        delta, speed = self._measure()
+        _, p_max = self._scenario.network(self._t_s, self._plant)
+        self._pmu_pub.publish(contract.pmu_message(stamp_ns, delta, speed, float(electrical_power(delta, p_max))))
+
+    def _publish_state(self, stamp_ns: int) -> None:
+        self._state_pub.publish(contract.plant_state_message(
+            stamp_ns, float(self._x[0]), float(self._x[1]), self._battery_power_pu))
+
+    def _finished(self) -> bool:
+        duration = self._values["duration_s"]
+        return duration > 0 and self._t_s >= duration - 1e-9
+
+    def _finish(self) -> None:
+        for timer in (self._tick_timer, self._watchdog):
+            if timer is not None:
+                timer.cancel()
+        self._publish_diagnostics()
+        if not self.done.done():
+            self.done.set_result(True)
+
+    # --- realtime ------------------------------------------------------------------------
+
+    def _on_tick(self) -> None:
+        now_ns = self._now_ns()
+        self._stats.tick(now_ns, self._t0_ns + round(self._sample * self._period_s * 1e9))
+        self._advance_to((now_ns - self._t0_ns) * 1e-9)
+        if self._stats.command_age_s(now_ns) > self._values["command_timeout_s"] and self._battery_power_pu != 0:
+            self._battery_power_pu = 0.0
+            self._stats.command_timeouts += 1
+        self._publish_measurement(now_ns)
+        self._publish_state(now_ns)
+        self._stats.sent(now_ns, now_ns)
+        self._sample += 1
+        if self._finished():
+            self._finish()
+
+    # --- lockstep ------------------------------------------------------------------------
+
+    def _publish_sample(self) -> None:
+        self._t_s = self._sample * self._period_s  # exact sample instants, as offline
+        stamp_ns = contract.ns_from_seconds(self._t_s)
+        clock = Clock()
+        clock.clock = contract.time_from_ns(stamp_ns)
+        self._clock_pub.publish(clock)
+        self._awaiting_stamp_ns = stamp_ns
+        self._publish_measurement(stamp_ns)
+        self._stats.sent(stamp_ns, self._now_ns())
+
+    def _complete_sample(self) -> None:
+        """Apply the held command over one period and report the next sample."""
+        stamp_ns = self._awaiting_stamp_ns
+        self._awaiting_stamp_ns = None
+        self._publish_state(stamp_ns)
+        self._advance_to((self._sample + 1) * self._period_s)
+        self._sample += 1
+        if self._finished():
+            self._t_s = self._sample * self._period_s
+            self._publish_state(contract.ns_from_seconds(self._t_s))
+            self._finish()
+        else:
+            self._publish_sample()
+
+    def _check_lockstep_timeout(self) -> None:
+        if self._awaiting_stamp_ns is None:
+            return
+        waited_s = (self._now_ns() - self._stats.last_sent_wall_ns) * 1e-9
+        if waited_s > self._values["lockstep_timeout_s"]:
+            self._stats.deadline_misses += 1
+            self._battery_power_pu = 0.0
+            self._complete_sample()
+
+    # --- commands ------------------------------------------------------------------------
+
+    def _on_command(self, msg) -> None:
+        arrival_ns = self._now_ns()
+        try:
+            stamp_ns, power = contract.command_from_message(msg)
+        except contract.ContractError:
+            self._stats.rejected += 1
+            return
+        if not math.isfinite(power):
+            self._stats.rejected += 1
+            return
+        rating = self._values["battery_rating_pu"]
+        power = min(max(power, -rating), rating)
+        if self._lockstep:
+            if stamp_ns != self._awaiting_stamp_ns:
+                self._stats.late += 1  # an answer to a sample already completed (after a timeout)
+                return
+            self._stats.answered(stamp_ns, arrival_ns)
+            self._battery_power_pu = power
+            self._complete_sample()
+            return
+        if not self._started:
+            return
+        if not self._stats.answered(stamp_ns, arrival_ns):
+            return  # duplicate or older than the command in force
+        self._advance_to((arrival_ns - self._t0_ns) * 1e-9)
+        self._battery_power_pu = power
+
+    # --- diagnostics ---------------------------------------------------------------------
+
+    def _publish_diagnostics(self) -> None:
+        level, message = (b"\x00", "running") if self._started else (b"\x01", "waiting for subscribers")
+        values = {"mode": self._values["mode"], "sim_time_s": self._t_s, "samples": self._sample,
+                  "battery_power_pu": self._battery_power_pu, **self._stats.summary()}
+        self._diag_pub.publish(contract.diagnostics_message(
+            self._now_ns(), "plant", self.get_fully_qualified_name(), level, message, values))
+
+    def close(self) -> None:
+        """Final diagnostics before the node goes (SIGINT/SIGTERM or end of run)."""
+        self._publish_diagnostics()
+
+
+def main(args=None) -> int:
+    """``ros2 run nni_plant_sim plant_node``."""
+    return run_node(PlantNode, args, prog="plant_node")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
