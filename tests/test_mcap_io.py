@@ -8,6 +8,7 @@ copying prefixes of a file written with several flushes, and once by SIGKILL.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -256,19 +257,37 @@ def test_definition_lists_each_dependency_once_depth_first_in_sorted_order(
     assert definition.count("=" * 80 + "\n") == len(dependencies)
 
 
-def test_definition_uses_ament_prefix_path_when_set() -> None:
+def test_definition_matches_rosbag2_test_vector_through_ament_prefix_path(tmp_path: Path) -> None:
+    """rosbag2's own test case (rosbag2_test_msgdefs/ComplexMsg), found via AMENT_PREFIX_PATH."""
+    prefix = tmp_path / "install"
+    package_index = prefix / "share" / "ament_index" / "resource_index" / "packages"
+    package_index.mkdir(parents=True)
+    (package_index / "rosbag2_test_msgdefs").write_text("")
+    msg_dir = prefix / "share" / "rosbag2_test_msgdefs" / "msg"
+    msg_dir.mkdir(parents=True)
+    (msg_dir / "ComplexMsg.msg").write_text("rosbag2_test_msgdefs/BasicMsg b\n")
+    (msg_dir / "BasicMsg.msg").write_text("float32 c\n")
     script = (
+        "import json, sys\n"
         "from nni_msgs_adapter.mcap_io import message_definition\n"
-        "print(message_definition('sensor_msgs/msg/JointState'), end='')\n"
+        "print(json.dumps([message_definition(name) for name in sys.argv[1:]]))\n"
     )
     result = subprocess.run(
-        [sys.executable, "-c", script],
-        env={**os.environ, "AMENT_PREFIX_PATH": sys.prefix},
+        [sys.executable, "-c", script, "rosbag2_test_msgdefs/ComplexMsg", "sensor_msgs/msg/JointState"],
+        env={**os.environ, "AMENT_PREFIX_PATH": f"{prefix}{os.pathsep}{sys.prefix}"},
         capture_output=True,
         text=True,
         check=True,
     )
-    assert result.stdout == message_definition("sensor_msgs/msg/JointState")
+    complex_definition, joint_state_definition = json.loads(result.stdout)
+    assert complex_definition == (
+        "rosbag2_test_msgdefs/BasicMsg b\n"
+        "\n"
+        "================================================================================\n"
+        "MSG: rosbag2_test_msgdefs/BasicMsg\n"
+        "float32 c\n"
+    )
+    assert joint_state_definition == message_definition("sensor_msgs/msg/JointState")
 
 
 def test_schema_and_channel_records_follow_rosbag2(recording: tuple[Path, list[WrittenMessage]]) -> None:

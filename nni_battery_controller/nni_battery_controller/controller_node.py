@@ -8,9 +8,12 @@ update step: event-driven sampling, O(1) work, nothing else on that path.
 
 Input hygiene (counted, reported in diagnostics): malformed or non-finite
 measurements, duplicates and out-of-order stamps are dropped. With no
-measurement for ``stale_after_periods`` periods the controller commands zero
-battery power once and reports STALE; when data returns its state is reset, so
-the output restarts from the steady state instead of jumping.
+measurement for ``stale_after_periods`` periods of wall time the controller
+commands zero battery power once and reports STALE. When data returns with a
+gap of more than that many periods in its own stamps (realtime: wall time;
+lockstep: simulated time) the law's state is reset, so the output restarts from
+the steady state instead of jumping; a lockstep plant that merely paused (wall
+time passed, simulated time did not) resumes with its state intact.
 """
 
 from __future__ import annotations
@@ -68,7 +71,7 @@ class ControllerNode(Node):
         self._last_arrival_ns = None
         self._stale = False
         self.counts = {"samples": 0, "malformed": 0, "non_finite": 0, "duplicate": 0, "out_of_order": 0,
-                       "stale_episodes": 0}
+                       "stale_episodes": 0, "resets": 0}
 
         self._command_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_BATTERY_COMMAND))
         self._state_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_CONTROLLER_STATE))
@@ -94,11 +97,15 @@ class ControllerNode(Node):
         if self._last_stamp_ns is not None and stamp_ns <= self._last_stamp_ns:
             self.counts["duplicate" if stamp_ns == self._last_stamp_ns else "out_of_order"] += 1
             return
+        gap_s = None if self._last_stamp_ns is None else (stamp_ns - self._last_stamp_ns) * 1e-9
         self._last_stamp_ns = stamp_ns
         self._last_arrival_ns = self.get_clock().now().nanoseconds
-        if self._stale:
-            self._stale = False
+        self._stale = False
+        if gap_s is not None and gap_s > self._config.stale_after_s:
+            # Data went missing in its own time base: the state no longer describes
+            # the plant, so restart from steady state rather than jump.
             self._law.reset()
+            self.counts["resets"] += 1
         angle_dev = delta - self._config.plant.delta_bar_rad
         x3 = self._law.x3
         power, w, saturated = self._law.step(angle_dev)

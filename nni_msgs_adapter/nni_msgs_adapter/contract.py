@@ -49,18 +49,15 @@ ROTOR_JOINT = "rotor"
 BATTERY_JOINT = "battery"
 CONTROLLER_SIGNALS = ("x3", "w", "battery_power", "saturated", "w_hat", "battery_limit")
 
-# Measurements and commands: RELIABLE because the lockstep handshake needs every
-# sample answered and a lost command is a missed control action; on localhost
-# reliability costs no round trip unless a sample is lost. KEEP_LAST 10 bounds
-# memory and lets a briefly slow subscriber catch up without unbounded queues;
-# VOLATILE because an old sample is worthless to a controller that (re)starts.
+# Every per-sample stream (measurements, commands, states): RELIABLE because the
+# lockstep handshake needs every sample answered, a lost command is a missed
+# control action and the recording must be complete; on localhost reliability
+# costs no round trip unless a sample is lost. KEEP_LAST 100 bounds memory while
+# letting a subscriber that stalls for up to 100 samples (the logger on a busy
+# disk, 0.1 s at 1000 frames/s) catch up with nothing lost; the controller
+# itself never has more than one sample outstanding. VOLATILE because an old
+# sample is worthless to a controller that (re)starts.
 SAMPLE_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=10,
-    reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
-)
-# States for analysis and logging: same as samples, deeper so that a logger that
-# stalls briefly (disk) loses nothing at 1000 samples/s.
-STATE_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=100,
     reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
 )
@@ -74,10 +71,11 @@ DIAGNOSTICS_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST, depth=10,
     reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
 )
-# /clock: only the latest time matters (KEEP_LAST 1); RELIABLE offered so both
-# reliable and best-effort (rclpy's TimeSource) subscribers match.
+# /clock: nodes only need the latest time, but the recording should hold every
+# tick, so KEEP_LAST 100 as for samples; RELIABLE offered so both reliable and
+# best-effort (rclpy's TimeSource) subscribers match.
 CLOCK_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=1,
+    history=HistoryPolicy.KEEP_LAST, depth=100,
     reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
 )
 
@@ -85,8 +83,8 @@ CLOCK_QOS = QoSProfile(
 TOPICS = {
     TOPIC_PMU: ("sensor_msgs/msg/JointState", JointState, SAMPLE_QOS),
     TOPIC_BATTERY_COMMAND: ("sensor_msgs/msg/JointState", JointState, SAMPLE_QOS),
-    TOPIC_PLANT_STATE: ("sensor_msgs/msg/JointState", JointState, STATE_QOS),
-    TOPIC_CONTROLLER_STATE: ("sensor_msgs/msg/JointState", JointState, STATE_QOS),
+    TOPIC_PLANT_STATE: ("sensor_msgs/msg/JointState", JointState, SAMPLE_QOS),
+    TOPIC_CONTROLLER_STATE: ("sensor_msgs/msg/JointState", JointState, SAMPLE_QOS),
     TOPIC_INVARIANT_SET: ("geometry_msgs/msg/PolygonStamped", PolygonStamped, LATCHED_QOS),
     TOPIC_DIAGNOSTICS: ("diagnostic_msgs/msg/DiagnosticArray", DiagnosticArray, DIAGNOSTICS_QOS),
     TOPIC_CLOCK: ("rosgraph_msgs/msg/Clock", Clock, CLOCK_QOS),

@@ -708,8 +708,6 @@ class Ros2McapWriter:
     def _flush_periodically(self, period_s: float) -> None:
         while not self._stop_flushing.wait(period_s):
             with self._lock:
-                if self._closed:
-                    return
                 self._writer.flush()
 
 
@@ -769,24 +767,25 @@ def _check_header(path: Path) -> None:
     """Raise :class:`RecordingError` unless *path* starts with a complete ``ros2`` MCAP header."""
     try:
         with path.open("rb") as stream:
+            size = os.fstat(stream.fileno()).st_size
             magic = stream.read(len(MCAP_MAGIC))
-            prefix = stream.read(_RECORD_PREFIX.size)
             if not magic:
                 raise RecordingError(f"{path}: empty file, not an MCAP recording")
             if not MCAP_MAGIC.startswith(magic):
                 raise RecordingError(f"{path}: not an MCAP file (bad magic bytes)")
-            if len(magic) < len(MCAP_MAGIC) or len(prefix) < _RECORD_PREFIX.size:
+            prefix = stream.read(_RECORD_PREFIX.size)
+            if len(prefix) < _RECORD_PREFIX.size:
                 raise RecordingError(f"{path}: truncated inside the MCAP header")
             opcode, length = _RECORD_PREFIX.unpack(prefix)
+            if opcode != Opcode.HEADER:
+                raise RecordingError(f"{path}: not an MCAP file (no header record after the magic)")
+            if stream.tell() + length > size:
+                raise RecordingError(f"{path}: truncated inside the MCAP header")
             body = stream.read(length)
     except FileNotFoundError:
         raise RecordingError(f"{path}: no such recording") from None
     except IsADirectoryError:
         raise RecordingError(f"{path}: is a directory, not an MCAP file") from None
-    if opcode != Opcode.HEADER:
-        raise RecordingError(f"{path}: not an MCAP file (no header record after the magic)")
-    if len(body) < length:
-        raise RecordingError(f"{path}: truncated inside the MCAP header")
     try:
         profile = Header.read(ReadDataStream(io.BytesIO(body))).profile
     except _CORRUPT_DATA_ERRORS:
@@ -810,7 +809,7 @@ class _PrefixStream:
 
 def _has_footer(stream: IO[bytes], size: int) -> bool:
     """Whether the file ends with a Footer record and the closing magic (a finished file)."""
-    if size < 2 * len(MCAP_MAGIC) + _FOOTER_AND_MAGIC_LENGTH:
+    if size < len(MCAP_MAGIC) + _FOOTER_AND_MAGIC_LENGTH:
         return False
     stream.seek(size - _FOOTER_AND_MAGIC_LENGTH)
     tail = stream.read(_FOOTER_AND_MAGIC_LENGTH)

@@ -45,6 +45,8 @@ PARAMETERS = (
     Spec("fault_at_start", True, "Start the fault scenario at t = 0; false waits for plant/start_fault."),
     Spec("wait_for_subscribers", 1, "Start only when this many subscribers listen on pmu "
          "(the controller, the logger); 0 starts at once.", 0, 100),
+    Spec("discovery_settle_s", 0.2, "Once the subscribers are there, wait this long so that every other "
+         "endpoint of theirs has matched too (DDS discovery), s.", 0.0, 10.0),
     Spec("inertia_h_s", 4.0, "Inertia constant H, s.", 1e-3, 1e3),
     Spec("damping_pu", 0.0, "Damping D, pu power per rad/s.", 0.0, 1e3),
     Spec("p_mech_pu", 0.8, "Pre-fault mechanical power P_M, pu (< P_max).", 0.0, 1e3),
@@ -72,7 +74,8 @@ PARAMETERS = (
 #: Parameters fixed once the run has started (they shape time or the physics).
 FIXED_AFTER_START = {"mode", "pmu_rate_hz", "integration_step_s", "inertia_h_s", "damping_pu", "p_mech_pu",
                      "p_max_pu", "f0_hz", "scenario", "delta0_rad", "speed0_rad_s", "step_p_mech_pu",
-                     "step_duration_s", "fault_p_max_pu", "clearing_time_s", "wait_for_subscribers"}
+                     "step_duration_s", "fault_p_max_pu", "clearing_time_s", "wait_for_subscribers",
+                     "discovery_settle_s"}
 
 
 def plant_from(values: dict) -> SmibParams:
@@ -116,6 +119,7 @@ class PlantNode(Node):
         self._battery_power_pu = 0.0
         self._sample = 0               # index of the next (lockstep: current) reporting instant
         self._started = False
+        self._subscribers_seen_ns = None
         self._awaiting_stamp_ns = None  # lockstep: stamp of the sample whose command we wait for
         self._stats = LoopStats(self._period_s)
 
@@ -155,6 +159,11 @@ class PlantNode(Node):
         if self._pmu_pub.get_subscription_count() < wanted:
             return
         if wanted > 0 and self._command_sub.get_publisher_count() < 1:
+            return
+        now_ns = self._now_ns()
+        if self._subscribers_seen_ns is None:
+            self._subscribers_seen_ns = now_ns
+        if (now_ns - self._subscribers_seen_ns) * 1e-9 < self._values["discovery_settle_s"]:
             return
         self._start_timer.cancel()
         self._started = True

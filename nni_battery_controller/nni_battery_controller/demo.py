@@ -1,0 +1,227 @@
+"""``nni-demo``: the distributed closed loop, one run per battery limit, recorded and summarised.
+
+For each b it starts three processes (MCAP logger, controller, plant) on a ROS
+domain of its own with localhost-only discovery, lets the plant run its
+scenario to the end, stops the others with SIGINT (SIGKILL after a grace
+period), and reads the recording back to write ``OUT/summary.json``: the keys of
+``nni-simulate --json`` per run plus loop latency (p50, p99, max in ms, from
+measurement to command arrival at the plant) and dropped / late sample counts
+from the plant's final diagnostics. The orchestrator itself uses no rclpy.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from nni_battery_controller.cli import PAPER_BATTERY_LIMITS
+from nni_battery_controller.law import ControllerParams
+from nni_battery_controller.simulate import Trajectory, assess
+from nni_msgs_adapter import contract
+from nni_msgs_adapter.cli_support import CliError, OneLineParser, atomic_output, battery_limit, positive_float, run_cli
+from nni_msgs_adapter.mcap_io import deserialize, read_messages
+from nni_msgs_adapter.mcap_logger import COUNTS_PREFIX
+from nni_plant_sim.model import SmibParams
+
+#: Seconds the logger gets after the plant ends, for the last reliable messages to land.
+DRAIN_S = 0.5
+#: Seconds a process gets to exit after SIGINT before SIGKILL.
+STOP_GRACE_S = 10.0
+
+
+def pmu_rate(text: str) -> float:
+    """argparse type: PMU reporting rate, 10 to 1000 frames/s (IEEE C37.118 practice)."""
+    import argparse
+
+    rate = positive_float(text)
+    if not 10.0 <= rate <= 1000.0:
+        raise argparse.ArgumentTypeError(f"rate must be within 10..1000 frames/s, got {text}")
+    return rate
+
+
+def build_parser() -> OneLineParser:
+    """The nni-demo command line."""
+    parser = OneLineParser(prog="nni-demo", description=__doc__)
+    parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
+                        help="lockstep: simulated /clock, deterministic, fast (default); realtime: wall clock")
+    parser.add_argument("--b", type=battery_limit, nargs="+", default=list(PAPER_BATTERY_LIMITS), metavar="B",
+                        help="battery limits in pu, one run each (default: 0 0.2 0.3 inf)")
+    parser.add_argument("--duration", type=positive_float, default=10.0, help="simulated seconds per run")
+    parser.add_argument("--rate", type=pmu_rate, default=50.0, help="PMU reporting rate, frames/s (default 50)")
+    parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (created)")
+    parser.add_argument("--domain-id", type=int, default=None,
+                        help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
+    return parser
+
+
+def recording_name(b: float) -> str:
+    """File name of one run's recording: paper_b0.3.mcap, paper_binf.mcap."""
+    return f"paper_b{'inf' if math.isinf(b) else f'{b:g}'}.mcap"
+
+
+def node_command(module: str, params: dict) -> list[str]:
+    """The process for a node module, with ROS parameters (.inf for inf)."""
+    args = []
+    for key, value in params.items():
+        text = ".inf" if value == math.inf else ("true" if value is True else "false" if value is False else value)
+        args += ["-p", f"{key}:={text}"]
+    return [sys.executable, "-m", module, "--ros-args", *args]
+
+
+class Processes:
+    """The run's child processes; all stopped (SIGINT, then SIGKILL) when the block ends."""
+
+    def __init__(self, env: dict, log_dir: Path):
+        self.env, self.log_dir, self.children = env, log_dir, {}
+
+    def start(self, name: str, module: str, params: dict) -> subprocess.Popen:
+        log = open(self.log_dir / f"{name}.log", "wb")
+        proc = subprocess.Popen(node_command(module, params), env=self.env, stdout=log, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+        self.children[name] = (proc, log)
+        return proc
+
+    def stop(self, name: str) -> int:
+        proc, log = self.children[name]
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=STOP_GRACE_S)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        log.close()
+        return proc.returncode
+
+    def output(self, name: str) -> str:
+        return (self.log_dir / f"{name}.log").read_text(errors="replace")
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        for name in list(self.children):
+            self.stop(name)
+
+
+def trajectory_from_recording(path: Path, plant: SmibParams, ctrl: ControllerParams) -> tuple[Trajectory, dict]:
+    """The sampled trajectory and the plant's last diagnostics from a run's MCAP."""
+    states, signals, diagnostics = [], {}, {}
+    for record in read_messages(path):
+        name = record.topic.rsplit("/", 1)[-1] if record.topic != contract.TOPIC_CLOCK else record.topic
+        if record.topic.endswith("/" + contract.TOPIC_PLANT_STATE):
+            states.append(contract.plant_state_from_message(deserialize(record.type_name, record.cdr_bytes)))
+        elif record.topic.endswith("/" + contract.TOPIC_CONTROLLER_STATE):
+            stamp_ns, values = contract.controller_state_from_message(deserialize(record.type_name, record.cdr_bytes))
+            signals[stamp_ns] = values
+        elif name == contract.TOPIC_DIAGNOSTICS:
+            values = contract.diagnostic_values(deserialize(record.type_name, record.cdr_bytes), "plant")
+            if values is not None:
+                diagnostics = values
+    if not states:
+        raise CliError(f"{path} holds no plant states: the loop did not run")
+    states.sort()
+    t0 = states[0][0]
+    stamps = [s[0] for s in states]
+    x3 = np.array([signals.get(stamp, {}).get("x3", np.nan) for stamp in stamps])
+    w = np.array([signals.get(stamp, {}).get("w", np.nan) for stamp in stamps])
+    saturated = np.array([signals.get(stamp, {}).get("saturated", 0.0) > 0.5 for stamp in stamps])
+    arr = np.array([s[1:] for s in states])
+    traj = Trajectory(plant, ctrl, (np.array(stamps) - t0) * 1e-9, arr[:, 0], arr[:, 1], x3, arr[:, 2], w,
+                      saturated, np.empty(0))
+    return traj, diagnostics
+
+
+def run_one(args, b: float, env: dict, out: Path) -> dict:
+    """One run: start logger, controller, plant; wait for the plant; summarise."""
+    recording = out / recording_name(b)
+    logs = out / "logs" / recording.stem
+    logs.mkdir(parents=True, exist_ok=True)
+    started = time.monotonic()
+    with Processes(env, logs) as procs:
+        procs.start("mcap_logger", "nni_msgs_adapter.mcap_logger",
+                    {"output_path": str(recording), "discovery_period_s": 0.1})
+        procs.start("controller", "nni_battery_controller.controller_node",
+                    {"battery_limit_pu": b, "sample_rate_hz": args.rate})
+        plant = procs.start("plant", "nni_plant_sim.plant_node",
+                            {"mode": args.mode, "duration_s": args.duration, "pmu_rate_hz": args.rate,
+                             "wait_for_subscribers": 2})
+        limit = 60.0 + (args.duration if args.mode == "realtime" else args.duration * 2)
+        try:
+            status = plant.wait(timeout=limit)
+        except subprocess.TimeoutExpired:
+            raise CliError(f"the plant did not finish within {limit:.0f} s (logs in {logs})") from None
+        if status != 0:
+            raise CliError(f"the plant exited with status {status}: {procs.output('plant').strip()[-300:]}")
+        time.sleep(DRAIN_S)
+        procs.stop("controller")
+        if procs.stop("mcap_logger") != 0:
+            raise CliError(f"the logger failed: {procs.output('mcap_logger').strip()[-300:]}")
+    wall_s = time.monotonic() - started
+    counts = logger_counts(procs.output("mcap_logger"))
+    traj, diag = trajectory_from_recording(recording, SmibParams(), ControllerParams(battery_limit_pu=b))
+    outcome = assess(traj).to_json()
+    outcome.update({
+        "mode": args.mode, "rate_hz": args.rate, "recording": str(recording), "wall_time_s": wall_s,
+        "samples": int(diag.get("samples", 0)),
+        "latency_ms": {q: float(diag[f"latency_{q}_ms"]) for q in ("p50", "p99", "max") if f"latency_{q}_ms" in diag},
+        "dropped_samples": int(diag.get("deadline_misses", 0)),
+        "late_samples": int(diag.get("late", 0)),
+        "logger_counts": counts,
+    })
+    return outcome
+
+
+def logger_counts(output: str) -> dict:
+    """The per-topic counts the logger printed at exit."""
+    for line in output.splitlines():
+        if line.startswith(COUNTS_PREFIX):
+            return json.loads(line[len(COUNTS_PREFIX):])["counts"]
+    raise CliError("the logger did not report its message counts")
+
+
+def main(argv=None) -> int:
+    """Entry point of ``nni-demo``."""
+    parser = build_parser()
+
+    def body():
+        args = parser.parse_args(argv)
+        domain = args.domain_id if args.domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
+        if not 0 <= domain <= 232:
+            raise CliError(f"ROS domain id must be within 0..232, got {domain}")
+        args.out.mkdir(parents=True, exist_ok=True)
+        if not os.access(args.out, os.W_OK):
+            raise CliError(f"output folder {args.out} is not writable")
+        env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain),
+                   PYTHONUNBUFFERED="1")
+        print(f"nni-demo: {args.mode}, {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}")
+        runs = []
+        for b in args.b:
+            run = run_one(args, b, env, args.out)
+            runs.append(run)
+            lat = run["latency_ms"]
+            print(f"  b = {b:<5g} {'stable' if run['stable'] else 'LOST SYNCHRONISM':<17} "
+                  f"max|d| {run['max_abs_angle_dev_rad']:8.4f} rad  max|P_ST| {run['max_abs_battery_power_pu']:.4f} pu"
+                  f"  latency p50/p99/max {lat.get('p50', math.nan):.2f}/{lat.get('p99', math.nan):.2f}/"
+                  f"{lat.get('max', math.nan):.2f} ms  dropped {run['dropped_samples']}  late {run['late_samples']}"
+                  f"  wall {run['wall_time_s']:.1f} s")
+        summary = args.out / "summary.json"
+        with atomic_output(summary) as handle:
+            json.dump({"scenarios": runs}, handle, indent=2)
+            handle.write("\n")
+        print(f"wrote {summary} and {len(runs)} recording(s) in {args.out}")
+        return 0
+
+    return run_cli(body, parser.prog)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,171 @@
+"""Real ROS 2 processes and an in-test probe node for the multi-process tests.
+
+Nodes run as separate processes over Fast DDS on localhost
+(ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) in a domain of the test's own; the probe
+is an rclpy node in the test process, in its own context on the same domain.
+Nothing here mocks ROS.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+_domain_counter = itertools.count()
+
+
+def fresh_domain_id() -> int:
+    """A ROS domain id for one test: distinct within this run, spread across runs by pid.
+
+    Stays in 1..100, the range safe on Linux for Fast DDS port mapping.
+    """
+    return 1 + (os.getpid() * 7 + next(_domain_counter)) % 100
+
+
+def ros_env(domain_id: int, **extra) -> dict:
+    """Environment for a node process: localhost discovery, the given domain."""
+    env = dict(os.environ)
+    env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain_id),
+               PYTHONUNBUFFERED="1", RCUTILS_COLORIZED_OUTPUT="0")
+    env.update({k: str(v) for k, v in extra.items()})
+    return env
+
+
+def node_command(module: str, params: dict | None = None, ros_args: tuple = ()) -> list[str]:
+    """``python -m module --ros-args -p k:=v ...`` with YAML-style values (.inf for inf)."""
+    cmd = [sys.executable, "-m", module]
+    args = list(ros_args)
+    for key, value in (params or {}).items():
+        args += ["-p", f"{key}:={yaml_value(value)}"]
+    return cmd + (["--ros-args", *args] if args else [])
+
+
+def yaml_value(value) -> str:
+    """A parameter value as ros2 command-line YAML."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float) and value == float("inf"):
+        return ".inf"
+    return str(value)
+
+
+class NodeProcess:
+    """A node started as its own process; output goes to a log file for post-mortems."""
+
+    def __init__(self, cmd: list[str], env: dict, log_path: Path):
+        self.log_path = log_path
+        self._log = open(log_path, "wb")
+        self.proc = subprocess.Popen(cmd, env=env, stdout=self._log, stderr=subprocess.STDOUT,
+                                     start_new_session=True)
+
+    def wait(self, timeout: float) -> int:
+        """Exit status, or TimeoutExpired after ``timeout`` s."""
+        return self.proc.wait(timeout=timeout)
+
+    def interrupt(self, timeout: float = 10.0) -> int:
+        """SIGINT and wait; SIGKILL if it does not exit in time. Returns the exit status."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self._log.close()
+        return self.proc.returncode
+
+    def kill(self) -> None:
+        """SIGKILL (simulates a crash)."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+
+    def output(self) -> str:
+        """Everything the process printed so far."""
+        self._log.flush()
+        return self.log_path.read_text(errors="replace")
+
+
+@contextmanager
+def node_processes(tmp_path: Path, domain_id: int):
+    """Start nodes with ``start(name, module, params)``; every one is stopped on exit."""
+    started: list[NodeProcess] = []
+
+    def start(name: str, module: str, params: dict | None = None, ros_args: tuple = ()) -> NodeProcess:
+        proc = NodeProcess(node_command(module, params, ros_args), ros_env(domain_id), tmp_path / f"{name}.log")
+        started.append(proc)
+        return proc
+
+    try:
+        yield start
+    finally:
+        for proc in started:
+            proc.interrupt(timeout=5.0)
+
+
+class Probe:
+    """An rclpy node in the test process that records topics of the contract.
+
+    Runs in its own rclpy Context on ``domain_id``, spun in a background thread.
+    """
+
+    def __init__(self, domain_id: int, topics, namespace: str = ""):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+
+        from nni_msgs_adapter import contract
+
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node("probe", namespace=namespace or None, context=self.context)
+        self.messages: dict[str, list] = {topic: [] for topic in topics}
+        self._lock = threading.Lock()
+        for topic in topics:
+            msg_class, name, qos = contract.endpoint(topic)
+            self.node.create_subscription(msg_class, name, self._recorder(topic), qos)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _recorder(self, topic):
+        def record(msg):
+            with self._lock:
+                self.messages[topic].append(msg)
+        return record
+
+    def _spin(self):
+        while self.context.ok():
+            try:
+                self.executor.spin_once(timeout_sec=0.05)
+            except Exception:  # context shut down under us at close()
+                return
+
+    def take(self, topic) -> list:
+        """A copy of what arrived on ``topic`` so far."""
+        with self._lock:
+            return list(self.messages[topic])
+
+    def wait_for(self, topic, count: int, timeout: float) -> list:
+        """Wait until ``count`` messages arrived on ``topic`` (or time out); return them."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and len(self.take(topic)) < count:
+            time.sleep(0.02)
+        return self.take(topic)
+
+    def close(self):
+        """Stop spinning and release DDS resources."""
+        import rclpy
+
+        rclpy.try_shutdown(context=self.context)
+        self._thread.join(timeout=2.0)
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
