@@ -1,4 +1,9 @@
-"""Round-trip tests of the Rerun views: write .rrd files, verify them, read them back."""
+"""Round-trip tests of the Rerun views: write .rrd files, verify them, read them back.
+
+rerun-sdk 0.41 no longer has ``rr.dataframe.load_recording``/``load_archive``;
+files are read back chunk by chunk with :class:`rerun.chunk.RrdReader`, whose
+chunks convert to pyarrow record batches (one column per timeline and component).
+"""
 
 from __future__ import annotations
 
@@ -13,6 +18,8 @@ import pytest
 from rerun.chunk import RrdReader
 
 from nni_msgs_adapter.rerun_view import (
+    PALETTE,
+    PHASE_PATH,
     LiveLogger,
     blueprint,
     log_trajectory,
@@ -51,6 +58,7 @@ def omega_ellipse(m: int = 200) -> np.ndarray:
 
 
 def write_batch(path: Path) -> dict[str, dict[str, np.ndarray]]:
+    """Log every run of ``RUNS`` with ``log_trajectory`` to ``path``; return the inputs."""
     recording, url = open_recording("nni_test_batch", ("save", path))
     assert url is None
     runs = {label: damped_run(b) for label, b in RUNS.items()}
@@ -61,14 +69,15 @@ def write_batch(path: Path) -> dict[str, dict[str, np.ndarray]]:
     return runs
 
 
-def write_live(path: Path, segment_samples: int = 40) -> dict[str, dict[str, np.ndarray]]:
+def write_live(path: Path, segment_samples: int = 40, n: int = N_SAMPLES) -> dict[str, dict[str, np.ndarray]]:
+    """Log every run of ``RUNS`` sample by sample with ``LiveLogger`` to ``path``; return the inputs."""
     recording, _ = open_recording("nni_test_live", ("save", path))
-    runs = {label: damped_run(b, n=1001) for label, b in RUNS.items()}
+    runs = {label: damped_run(b, n) for label, b in RUNS.items()}
     for label, b in RUNS.items():
         logger = LiveLogger(recording, label, b, 50.0, omega_ellipse(), segment_samples=segment_samples)
         run = runs[label]
         for k in range(run["t_s"].size):
-            logger.log(*(run[key][k] for key in run))
+            logger.log(**{key: values[k] for key, values in run.items()})
         logger.flush()
     recording.flush()
     recording.disconnect()
@@ -96,12 +105,14 @@ def temporal_column(batches: list[pa.RecordBatch], column: str) -> tuple[np.ndar
 
 
 def scalars(batches: list[pa.RecordBatch]) -> tuple[np.ndarray, np.ndarray]:
+    """Times (s) and values of a one-scalar-per-row ``Scalars`` entity."""
     t, values = temporal_column(batches, "Scalars:scalars")
     assert all(len(v) == 1 for v in values)
     return t, np.array([v[0] for v in values])
 
 
 def static_value(batches: list[pa.RecordBatch], column: str) -> list:
+    """The value of a static component column (a list: one entry per instance)."""
     static = [b for b in batches if TIMELINE not in b.schema.names and column in b.schema.names]
     assert len(static) == 1
     return static[0].column(column).to_pylist()[-1]
@@ -142,7 +153,7 @@ def test_scalars_round_trip(which: str, request: pytest.FixtureRequest) -> None:
         for path_, values in expected.items():
             t, got = scalars(entities[path_])
             np.testing.assert_allclose(t, run["t_s"], rtol=0, atol=1e-9)
-            np.testing.assert_allclose(got, values, rtol=1e-12, atol=0)
+            np.testing.assert_array_equal(got, values)  # float64 scalars round-trip exactly
         assert static_value(entities[paths.parameters], "b") == [b]
         assert static_value(entities[paths.parameters], "f0_hz") == [50.0]
         if math.isfinite(b):
@@ -188,16 +199,46 @@ def test_blueprint_is_stored(batch_file: tuple) -> None:
 
 
 def test_live_segments_are_bounded(tmp_path: Path) -> None:
-    runs = write_live(tmp_path / "live.rrd", segment_samples=10)
+    runs = write_live(tmp_path / "live.rrd", segment_samples=10, n=1001)
     strips = read_entities(tmp_path / "live.rrd")[run_paths("b=0.3").trajectory]
     _, rows = temporal_column(strips, "LineStrips2D:strips")
     assert max(len(row[0]) for row in rows) == 11
     assert len(rows) == math.ceil((runs["b=0.3"]["t_s"].size - 1) / 10)
 
 
+def test_phase_axes_and_colours(batch_file: tuple) -> None:
+    entities = read_entities(batch_file[0])
+    scale = static_value(entities[PHASE_PATH], "Transform3D:scale")
+    assert scale == [[1.0, -1.0, 1.0]]  # y-flip: d' points up
+    axes = np.array(static_value(entities[PHASE_PATH], "LineStrips2D:strips"))
+    assert axes.shape == (2, 2, 2) and np.all(axes[0, :, 1] == 0) and np.all(axes[1, :, 0] == 0)
+    labels = static_value(entities[PHASE_PATH], "Points2D:labels")
+    assert {"d (rad)", "d' (rad/s)", "1", "-3", "3"} <= set(labels)
+    colors = [static_value(entities[run_paths(label).angle], "SeriesLines:colors") for label in RUNS]
+    assert len({c[0] for c in colors}) == len(RUNS)  # one palette colour per run
+
+
+def test_no_battery_draws_zero_limits(tmp_path: Path) -> None:
+    recording, _ = open_recording("nni_test_b0", ("save", tmp_path / "b0.rrd"))
+    run = damped_run(0.0, n=100)
+    paths = log_trajectory(recording, "b=0", **run, b=0.0, f0_hz=50.0, color=PALETTE[3])
+    recording.disconnect()
+    entities = read_entities(tmp_path / "b0.rrd")
+    for path in (paths.limit_upper, paths.limit_lower):
+        np.testing.assert_array_equal(scalars(entities[path])[1], 0.0)
+    np.testing.assert_array_equal(scalars(entities[paths.saturation])[1], 1.0)
+    assert paths.omega_boundary not in entities
+
+
 def test_invalid_inputs() -> None:
     recording, _ = open_recording("nni_test_invalid", ("save", "/dev/null"))
     run = damped_run(0.3, n=10)
+    with pytest.raises(ValueError, match=">= 0"):
+        log_trajectory(recording, "bad", **run, b=-0.1, f0_hz=50.0)
+    with pytest.raises(ValueError, match="shape"):
+        LiveLogger(recording, "bad", 0.3, 50.0, omega_boundary=np.zeros(6))
+    with pytest.raises(ValueError, match="segment_samples"):
+        log_trajectory(recording, "bad", **run, b=0.3, f0_hz=50.0, segment_samples=0)
     run["w_hat"] = run["w_hat"][:-1]
     with pytest.raises(ValueError, match="common"):
         log_trajectory(recording, "bad", **run, b=0.3, f0_hz=50.0)
@@ -206,5 +247,18 @@ def test_invalid_inputs() -> None:
     recording.disconnect()
 
 
-def test_blueprint_builds_with_bounds() -> None:
-    assert blueprint(phase_bounds=((-1.3, 1.3), (-4.0, 4.0))) is not None
+def test_blueprint_file(tmp_path: Path) -> None:
+    path = tmp_path / "layout.rbl"
+    blueprint(timeline="pmu_time", phase_bounds=((-1.0, 1.6), (-2.0, 4.5))).save("nni_test", path)
+    result = subprocess.run([RERUN_CLI, "rrd", "verify", path], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    reader = RrdReader(path)
+    stored = {}
+    for chunk in reader.stream(store=reader.blueprints()[0]):
+        batch = chunk.to_record_batch()
+        for name in ("VisualBounds2D:range", "VisibleTimeRanges:ranges"):
+            if name in batch.schema.names:
+                stored[name] = batch.column(name).to_pylist()[-1][0]
+    # Bounds are given with d' up and stored for the y-down 2D space.
+    assert stored["VisualBounds2D:range"] == {"x_range": [-1.0, 1.6], "y_range": [-4.5, 2.0]}
+    assert stored["VisibleTimeRanges:ranges"]["timeline"] == "pmu_time"

@@ -26,22 +26,24 @@ from rclpy.node import Node
 from nni_battery_controller.law import ControllerParams, SampledController, closed_loop_lyapunov
 from nni_msgs_adapter import contract
 from nni_msgs_adapter.node_main import run_node
-from nni_msgs_adapter.ros_params import Spec, current_values, declare, install_validation
+from nni_msgs_adapter.ros_params import Spec, load_defaults, current_values, declare, install_validation
 from nni_plant_sim.model import SmibParams
 
+DEFAULTS = load_defaults("nni_battery_controller", "controller.yaml", "controller")
+
 PARAMETERS = (
-    Spec("tau_s", 0.1, "Phase-lead time constant tau, s.", 1e-4, 100.0),
-    Spec("gain_k", 1.0, "Gain K, pu/rad (must be < gain_l).", 1e-6, 100.0),
-    Spec("gain_l", 1.1, "Gain L, pu/rad (must be > gain_k: stability condition K - L < 0).", 1e-6, 100.0),
-    Spec("alpha", 1.0, "Saturated-mode decay factor alpha (x3' = -(alpha/K) x3).", 1e-6, 100.0),
-    Spec("battery_limit_pu", math.inf, "Battery power limit b, pu; .inf for unlimited, 0 for none.",
+    Spec("tau_s", DEFAULTS["tau_s"], "Phase-lead time constant tau, s.", 1e-4, 100.0),
+    Spec("gain_k", DEFAULTS["gain_k"], "Gain K, pu/rad (must be < gain_l).", 1e-6, 100.0),
+    Spec("gain_l", DEFAULTS["gain_l"], "Gain L, pu/rad (must be > gain_k: stability condition K - L < 0).", 1e-6, 100.0),
+    Spec("alpha", DEFAULTS["alpha"], "Saturated-mode decay factor alpha (x3' = -(alpha/K) x3).", 1e-6, 100.0),
+    Spec("battery_limit_pu", DEFAULTS["battery_limit_pu"], "Battery power limit b, pu; .inf for unlimited, 0 for none.",
          0.0, math.inf),
-    Spec("p_mech_pu", 0.8, "Model of the plant: pre-fault mechanical power P_M, pu.", 0.0, 1e3),
-    Spec("p_max_pu", 1.0, "Model of the plant: maximum transfer P_max, pu.", 1e-6, 1e3),
-    Spec("inertia_h_s", 4.0, "Model of the plant: inertia H, s (for W_hat only).", 1e-3, 1e3),
-    Spec("f0_hz", 50.0, "Model of the plant: nominal frequency, Hz (for W_hat only).", 1.0, 1e3),
-    Spec("sample_rate_hz", 50.0, "PMU reporting rate the law is discretised for, frames/s.", 10.0, 1000.0),
-    Spec("stale_after_periods", 5, "Measurements missing for this many periods: zero power, STALE.", 1, 10000),
+    Spec("p_mech_pu", DEFAULTS["p_mech_pu"], "Model of the plant: pre-fault mechanical power P_M, pu.", 0.0, 1e3),
+    Spec("p_max_pu", DEFAULTS["p_max_pu"], "Model of the plant: maximum transfer P_max, pu.", 1e-6, 1e3),
+    Spec("inertia_h_s", DEFAULTS["inertia_h_s"], "Model of the plant: inertia H, s (for W_hat only).", 1e-3, 1e3),
+    Spec("f0_hz", DEFAULTS["f0_hz"], "Model of the plant: nominal frequency, Hz (for W_hat only).", 1.0, 1e3),
+    Spec("sample_rate_hz", DEFAULTS["sample_rate_hz"], "PMU reporting rate the law is discretised for, frames/s.", 10.0, 1000.0),
+    Spec("stale_after_periods", DEFAULTS["stale_after_periods"], "Measurements missing for this many periods: zero power, STALE.", 1, 10000),
 )
 
 

@@ -28,16 +28,18 @@ from pathlib import Path
 from rclpy.node import Node
 
 from nni_msgs_adapter import contract
-from nni_msgs_adapter.mcap_io import OfferedQos, Ros2McapWriter, qos_profiles_yaml
+from nni_msgs_adapter.mcap_io import OfferedQos, RecordingError, Ros2McapWriter, qos_profiles_yaml
 from nni_msgs_adapter.node_main import run_node
-from nni_msgs_adapter.ros_params import Spec, current_values, declare
+from nni_msgs_adapter.ros_params import Spec, load_defaults, current_values, declare
+
+DEFAULTS = load_defaults("nni_msgs_adapter", "mcap_logger.yaml", "mcap_logger")
 
 PARAMETERS = (
-    Spec("output_path", "", "MCAP file to write; empty: nni_<date>_<time>.mcap in the working directory.",
+    Spec("output_path", DEFAULTS["output_path"], "MCAP file to write; empty: nni_<date>_<time>.mcap in the working directory.",
          read_only=True),
-    Spec("flush_period_s", 0.5, "Longest time a received message waits before it is in the file, s.",
+    Spec("flush_period_s", DEFAULTS["flush_period_s"], "Longest time a received message waits before it is in the file, s.",
          0.01, 10.0, read_only=True),
-    Spec("discovery_period_s", 1.0, "How often the graph is scanned for new topics, s.", 0.05, 60.0,
+    Spec("discovery_period_s", DEFAULTS["discovery_period_s"], "How often the graph is scanned for new topics, s.", 0.05, 60.0,
          read_only=True),
 )
 
@@ -95,7 +97,12 @@ class McapLogger(Node):
             offered = [OfferedQos.from_rclpy(info.qos_profile) for info in self.get_publishers_info_by_topic(topic)]
             if not offered:
                 continue  # only subscribers so far; the publishers' QoS is what replay must offer
-            channel = self._writer.add_channel(topic, type_name, qos_profiles_yaml(offered))
+            try:
+                channel = self._writer.add_channel(topic, type_name, qos_profiles_yaml(offered))
+            except RecordingError as exc:
+                self.get_logger().error(f"not recording {topic}: {exc}")
+                self._recorded[topic] = None
+                continue
             self._recorded[topic] = self.create_subscription(
                 msg_class, topic, self._writer_for(channel), qos, raw=True)
 

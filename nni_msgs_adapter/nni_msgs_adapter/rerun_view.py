@@ -14,12 +14,15 @@ entity path                         content
 ``/battery/L/limit_upper``          ``+b`` (pu), only for a finite ``b``
 ``/battery/L/limit_lower``          ``-b`` (pu), only for a finite ``b``
 ``/saturation/L``                   saturation flag, 1 while ``|w| >= b`` (-)
-``/w_hat/L``                        closed-loop Lyapunov candidate ``W_hat`` (pu)
-``/phase_portrait/L``               static y-flip transform (2D views draw y down)
+``/w_hat/L``                        closed-loop Lyapunov candidate ``W_hat`` (pu rad)
 ``/phase_portrait/L/trajectory``    ``(d, d')`` strip segments, rad and rad/s
 ``/phase_portrait/L/omega_boundary`` closed boundary of the invariant set Omega
 ``/parameters/L``                   static run parameters ``b`` (pu), ``f0_hz`` (Hz)
 =================================== ============================================
+
+``/phase_portrait`` itself (shared by all runs, static) holds a y-flip transform
+(2D views draw y down; the flip makes ``d'`` point up) and the ``d``/``d'``
+axes with ticks, sized by the last Omega boundary logged.
 
 All time series live on one duration timeline (default ``"sim_time"``, seconds).
 The phase-portrait trajectory is logged as consecutive strip segments, each
@@ -41,8 +44,8 @@ import rerun.blueprint as rrb
 #: Default number of samples per phase-portrait strip segment (-).
 PHASE_SEGMENT_SAMPLES = 50
 
-#: Static phase-portrait axes (with unit ticks in its ``ticks`` child).
-PHASE_AXES_PATH = "/phase_portrait/axes"
+#: Root of the phase portrait: y-flip, axes and ticks; runs are its children.
+PHASE_PATH = "/phase_portrait"
 
 #: Run colours (RGB), assigned in order of first use within a recording.
 PALETTE = (
@@ -78,7 +81,6 @@ class RunPaths(NamedTuple):
     limit_lower: str
     saturation: str
     w_hat: str
-    phase: str
     trajectory: str
     omega_boundary: str
     parameters: str
@@ -107,9 +109,8 @@ def run_paths(label: str) -> RunPaths:
         limit_lower=f"/battery/{part}/limit_lower",
         saturation=f"/saturation/{part}",
         w_hat=f"/w_hat/{part}",
-        phase=f"/phase_portrait/{part}",
-        trajectory=f"/phase_portrait/{part}/trajectory",
-        omega_boundary=f"/phase_portrait/{part}/omega_boundary",
+        trajectory=f"{PHASE_PATH}/{part}/trajectory",
+        omega_boundary=f"{PHASE_PATH}/{part}/omega_boundary",
         parameters=f"/parameters/{part}",
     )
 
@@ -145,7 +146,8 @@ def blueprint(
         # The trajectory is drawn through a y-flip, so flip the bounds as well.
         bounds = rrb.VisualBounds2D(x_range=(x_min, x_max), y_range=(-y_max, -y_min))
     phase_view = rrb.Spatial2DView(
-        origin="/phase_portrait",
+        origin="/",
+        contents=f"{PHASE_PATH}/**",
         name="Phase portrait (d [rad] right, d' [rad/s] up)",
         visual_bounds=bounds,
         time_ranges=rrb.VisibleTimeRange(
@@ -159,12 +161,15 @@ def blueprint(
             rrb.Vertical(
                 series_view("/angle_deviation", "Angle deviation (rad)"),
                 series_view("/frequency_deviation", "Frequency deviation (Hz)"),
-                series_view("/battery", "Battery power (pu)"),
-                series_view("/saturation", "Saturation (flag 0/1)", rrb.ScalarAxis(range=(-0.1, 1.1))),
                 series_view("/w_hat", "W_hat (closed-loop Lyapunov candidate)"),
             ),
+            rrb.Vertical(
+                series_view("/battery", "Battery power (pu)"),
+                series_view("/saturation", "Saturation (flag 0/1)", rrb.ScalarAxis(range=(-0.1, 1.1))),
+                row_shares=[2, 1],
+            ),
             phase_view,
-            column_shares=[3, 2],
+            column_shares=[1, 1, 0.8],
         ),
         rrb.TimePanel(timeline=timeline, play_state="Following", state="Collapsed"),
         rrb.BlueprintPanel(state="Collapsed"),
@@ -187,8 +192,9 @@ def open_recording(
         Rerun application id.
     sink : tuple
         ``("save", path)`` writes an ``.rrd`` file; ``("serve", port)`` hosts a
-        gRPC server (``port`` or 9876 if ``None``) and the web viewer on
-        port 9090; ``("spawn", None)`` starts a native viewer.
+        gRPC server (``port``, or 9876 if ``None``) and the web viewer on
+        port 9090, both on all network interfaces, for as long as the process
+        runs; ``("spawn", None)`` starts a native viewer.
     layout : rerun.blueprint.Blueprint or None
         Blueprint to send; defaults to :func:`blueprint`.
 
@@ -259,7 +265,7 @@ def log_trajectory(
     saturated : numpy.ndarray
         Saturation flags (bool or 0/1), shape ``(n,)``.
     w_hat : numpy.ndarray or None
-        Closed-loop Lyapunov candidate ``W_hat`` (pu), shape ``(n,)``;
+        Closed-loop Lyapunov candidate ``W_hat`` (pu rad), shape ``(n,)``;
         ``None`` if not available.
     b : float
         Battery limit (pu); ``inf`` draws no limit lines, 0 is "no battery".
@@ -283,7 +289,9 @@ def log_trajectory(
     Raises
     ------
     ValueError
-        If the sample arrays are not 1-D of one common non-zero length.
+        If the sample arrays are not 1-D of one common non-zero length,
+        ``segment_samples < 1``, ``b`` is negative or NaN, or
+        ``omega_boundary`` is not of shape ``(m, 2)``.
     """
     series = [t_s, angle_dev_rad, speed_dev_rad_s, battery_power_pu, saturated]
     if w_hat is not None:
@@ -293,6 +301,7 @@ def log_trajectory(
     if n == 0 or any(x.ndim != 1 or x.size != n for x in series):
         raise ValueError("sample arrays must be 1-D with one common non-zero length")
     t, d, d_dot, power, sat = series[:5]
+    last = _segment_ends(n, segment_samples)
     paths = run_paths(label)
     _log_run_statics(recording, label, paths, b, f0_hz, omega_boundary, color)
 
@@ -313,7 +322,6 @@ def log_trajectory(
             recording.send_columns(path, indexes=ends, columns=rr.Scalars.columns(scalars=[limit, limit]))
 
     points = np.column_stack([d, d_dot])
-    last = _segment_ends(n, segment_samples)
     first = np.concatenate([[0], last[:-1]])
     recording.send_columns(
         paths.trajectory,
@@ -349,6 +357,12 @@ class LiveLogger:
         RGB colour of the run; ``None`` picks the next :data:`PALETTE` entry.
     segment_samples : int
         Samples per phase-portrait strip segment.
+
+    Raises
+    ------
+    ValueError
+        If ``segment_samples < 1``, ``b`` is negative or NaN, or
+        ``omega_boundary`` is not of shape ``(m, 2)``.
     """
 
     def __init__(
@@ -398,7 +412,7 @@ class LiveLogger:
         saturated : bool
             Whether the battery is saturated.
         w_hat : float or None
-            Closed-loop Lyapunov candidate ``W_hat`` (pu), if available.
+            Closed-loop Lyapunov candidate ``W_hat`` (pu rad), if available.
         """
         rec, paths = self.recording, self.paths
         rec.set_time(self.timeline, duration=t_s)
@@ -426,8 +440,8 @@ def _segment_ends(n: int, segment_samples: int) -> np.ndarray:
     """
     Return the last sample index of each phase-portrait strip segment.
 
-    Segment ``k`` spans samples ``ends[k-1] .. ends[k]`` (``ends[-1] = 0``), so
-    consecutive segments share an end point and the strip has no gaps.
+    Segment ``k`` spans samples ``ends[k-1] .. ends[k]`` (``ends[-1]`` read as
+    0), so consecutive segments share an end point and the strip has no gaps.
 
     Parameters
     ----------
@@ -457,9 +471,19 @@ def _log_run_statics(
     omega_boundary: np.ndarray | None,
     color: tuple[int, int, int] | None,
 ) -> None:
-    """Log the static styling, parameters, y-flip and Omega boundary of a run."""
+    """Log the static styling, parameters and Omega boundary of a run, and the y-flip."""
+    if not b >= 0.0:
+        raise ValueError(f"battery limit b must be >= 0 (pu), got {b}")
+    boundary = None
+    if omega_boundary is not None:
+        boundary = np.asarray(omega_boundary, dtype=np.float64)
+        if boundary.ndim != 2 or boundary.shape[0] < 2 or boundary.shape[1] != 2:
+            raise ValueError("omega_boundary must have shape (m, 2) with m >= 2")
+        if not np.array_equal(boundary[0], boundary[-1]):
+            boundary = np.vstack([boundary, boundary[:1]])
     if color is None:
         color = _run_color(recording, label)
+    radius = rr.components.Radius.ui_points(_STRIP_RADIUS_PX)
     styles = {
         paths.angle: rr.SeriesLines(colors=color, widths=_LINE_WIDTH_PX, names=f"d {label}"),
         paths.frequency: rr.SeriesLines(colors=color, widths=_LINE_WIDTH_PX, names=f"Δf {label}"),
@@ -468,38 +492,30 @@ def _log_run_statics(
             colors=color, widths=_LINE_WIDTH_PX, names=f"saturated {label}", interpolation_mode="StepAfter"
         ),
         paths.w_hat: rr.SeriesLines(colors=color, widths=_LINE_WIDTH_PX, names=f"W_hat {label}"),
-        paths.phase: _Y_UP,
         paths.parameters: rr.AnyValues(b=b, f0_hz=f0_hz),
+        # Static colour and width apply to every (time-stamped) trajectory segment.
+        paths.trajectory: rr.LineStrips2D.from_fields(colors=color, radii=radius),
+        PHASE_PATH: _Y_UP,
     }
     if math.isfinite(b):
         limit_color = (*color, _LIMIT_ALPHA)
         styles[paths.limit_upper] = rr.SeriesLines(colors=limit_color, widths=1.0, names=f"+b {label}")
         styles[paths.limit_lower] = rr.SeriesLines(colors=limit_color, widths=1.0, names=f"-b {label}")
+    if boundary is not None:
+        styles[paths.omega_boundary] = rr.LineStrips2D([boundary], colors=_OMEGA_COLOR, radii=radius)
     for path, archetype in styles.items():
         recording.log(path, archetype, static=True)
-    # The trajectory's colour is logged with every segment's row defaults: static.
-    recording.log(
-        paths.trajectory,
-        rr.LineStrips2D.from_fields(colors=color, radii=rr.components.Radius.ui_points(_STRIP_RADIUS_PX)),
-        static=True,
-    )
-    if omega_boundary is not None:
-        boundary = np.asarray(omega_boundary, dtype=np.float64)
-        if boundary.ndim != 2 or boundary.shape[1] != 2:
-            raise ValueError("omega_boundary must have shape (m, 2)")
-        if not np.array_equal(boundary[0], boundary[-1]):
-            boundary = np.vstack([boundary, boundary[:1]])
-        radius = rr.components.Radius.ui_points(_STRIP_RADIUS_PX)
-        recording.log(paths.omega_boundary, rr.LineStrips2D([boundary], colors=_OMEGA_COLOR, radii=radius), static=True)
+    if boundary is not None:
         _log_phase_axes(recording, boundary)
 
 
 def _log_phase_axes(recording: rr.RecordingStream, boundary: np.ndarray) -> None:
     """
-    Draw the phase-portrait axes with unit ticks over the extent of ``boundary``.
+    Draw the phase-portrait axes with ticks over the extent of ``boundary``.
 
-    The axes go to the static entities :data:`PHASE_AXES_PATH` and its
-    ``ticks`` child; the last boundary logged sets their extent.
+    Ticks are spaced by the power of ten just below each axis' extent (at most
+    ten per axis). Axes and ticks are static components of :data:`PHASE_PATH`;
+    the last boundary logged sets their extent.
 
     Parameters
     ----------
@@ -508,20 +524,26 @@ def _log_phase_axes(recording: rr.RecordingStream, boundary: np.ndarray) -> None
     boundary : numpy.ndarray
         Points ``(d, d')`` in rad and rad/s, shape ``(m, 2)``.
     """
-    lo = np.minimum(np.floor(boundary.min(axis=0)), -1.0)
-    hi = np.maximum(np.ceil(boundary.max(axis=0)), 1.0)
-    axes = [[[lo[0], 0.0], [hi[0], 0.0]], [[0.0, lo[1]], [0.0, hi[1]]]]
-    ticks, labels = [], []
-    for axis, unit in enumerate(("rad", "rad/s")):
-        for k in np.arange(lo[axis], hi[axis] + 1.0):
+    lo, hi = np.minimum(boundary.min(axis=0), 0.0), np.maximum(boundary.max(axis=0), 0.0)
+    margin = 0.1 * (hi - lo)
+    # The axes overshoot the boundary by a margin, where the unit labels sit clear of the ticks.
+    ends_lo, ends_hi = lo - margin, hi + margin
+    axes = [[[ends_lo[0], 0.0], [ends_hi[0], 0.0]], [[0.0, ends_lo[1]], [0.0, ends_hi[1]]]]
+    ticks, labels = [[ends_hi[0], 0.0], [0.0, ends_hi[1]]], ["d (rad)", "d' (rad/s)"]
+    for axis, span in enumerate(hi - lo):
+        if span == 0.0:
+            continue
+        step = 10.0 ** np.floor(np.log10(span))
+        for k in step * np.arange(np.ceil(lo[axis] / step), np.floor(hi[axis] / step) + 1.0):
             if k != 0.0:
                 ticks.append([k, 0.0] if axis == 0 else [0.0, k])
-                labels.append(f"{k:g} {unit}" if k == hi[axis] else f"{k:g}")
-    radius = rr.components.Radius.ui_points(0.5)
-    recording.log(PHASE_AXES_PATH, _Y_UP, rr.LineStrips2D(axes, colors=_AXES_COLOR, radii=radius), static=True)
+                labels.append(f"{k:g}")
     recording.log(
-        f"{PHASE_AXES_PATH}/ticks",
-        rr.Points2D(ticks, colors=_AXES_COLOR, radii=rr.components.Radius.ui_points(2.0), labels=labels, show_labels=True),
+        PHASE_PATH,
+        rr.LineStrips2D(axes, colors=_AXES_COLOR, radii=rr.components.Radius.ui_points(0.5)),
+        rr.Points2D(
+            ticks, colors=_AXES_COLOR, radii=rr.components.Radius.ui_points(2.0), labels=labels, show_labels=True
+        ),
         static=True,
     )
 

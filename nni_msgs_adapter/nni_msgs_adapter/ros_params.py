@@ -8,8 +8,12 @@ and an invalid change is rejected with that reason, the old values kept.
 
 from __future__ import annotations
 
+import importlib
 import math
 from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 
@@ -39,6 +43,29 @@ class Spec:
                 descriptor.floating_point_range = [FloatingPointRange(
                     from_value=float(self.low), to_value=float(self.high), step=0.0)]
         return descriptor
+
+
+def load_defaults(package: str, filename: str, node_name: str) -> dict:
+    """A node's default parameter values from its package's ``config/<filename>``.
+
+    Looks in the installed share directory (colcon install, found through the
+    ament index) first, then beside the package's source (editable install).
+    The file is a ROS params file keyed ``/**/<node_name>``.
+    """
+    candidates = []
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        candidates.append(Path(get_package_share_directory(package)) / "config" / filename)
+    except (LookupError, OSError, ValueError):
+        pass  # not in an ament index (plain venv): use the source tree
+    module_file = importlib.import_module(package).__file__
+    candidates.append(Path(module_file).resolve().parent.parent / "config" / filename)
+    for path in candidates:
+        if path.is_file():
+            with open(path) as handle:
+                return yaml.safe_load(handle)[f"/**/{node_name}"]["ros__parameters"]
+    raise FileNotFoundError(f"no config/{filename} for {package} in {', '.join(map(str, candidates))}")
 
 
 def declare(node, specs) -> None:

@@ -30,44 +30,46 @@ from std_srvs.srv import Trigger
 from nni_msgs_adapter import contract
 from nni_msgs_adapter.loop_stats import LoopStats
 from nni_msgs_adapter.node_main import run_node
-from nni_msgs_adapter.ros_params import Spec, check_choices, current_values, declare, install_validation
+from nni_msgs_adapter.ros_params import Spec, load_defaults, check_choices, current_values, declare, install_validation
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.model import SmibParams, electrical_power, invariant_set_boundary
 from nni_plant_sim.scenarios import PRE_FAULT, SCENARIOS, StartingAt
 
+DEFAULTS = load_defaults("nni_plant_sim", "plant.yaml", "plant")
+
 PARAMETERS = (
-    Spec("mode", "realtime", "Time mode: realtime (wall clock) or lockstep (simulated /clock).",
+    Spec("mode", DEFAULTS["mode"], "Time mode: realtime (wall clock) or lockstep (simulated /clock).",
          choices=("realtime", "lockstep")),
-    Spec("pmu_rate_hz", 50.0, "PMU reporting rate, frames/s (IEEE C37.118 practice: 10 to 1000).", 10.0, 1000.0),
-    Spec("integration_step_s", 1e-3, "Largest RK4 step of the swing equation, s.", 1e-6, 0.1),
-    Spec("duration_s", 0.0, "Simulated seconds to run after the start, then exit; 0 runs until stopped.",
+    Spec("pmu_rate_hz", DEFAULTS["pmu_rate_hz"], "PMU reporting rate, frames/s (IEEE C37.118 practice: 10 to 1000).", 10.0, 1000.0),
+    Spec("integration_step_s", DEFAULTS["integration_step_s"], "Largest RK4 step of the swing equation, s.", 1e-6, 0.1),
+    Spec("duration_s", DEFAULTS["duration_s"], "Simulated seconds to run after the start, then exit; 0 runs until stopped.",
          0.0, 1e9),
-    Spec("fault_at_start", True, "Start the fault scenario at t = 0; false waits for plant/start_fault."),
-    Spec("wait_for_subscribers", 1, "Start only when this many subscribers listen on pmu "
+    Spec("fault_at_start", DEFAULTS["fault_at_start"], "Start the fault scenario at t = 0; false waits for plant/start_fault."),
+    Spec("wait_for_subscribers", DEFAULTS["wait_for_subscribers"], "Start only when this many subscribers listen on pmu "
          "(the controller, the logger); 0 starts at once.", 0, 100),
-    Spec("discovery_settle_s", 0.2, "Once the subscribers are there, wait this long so that every other "
+    Spec("discovery_settle_s", DEFAULTS["discovery_settle_s"], "Once the subscribers are there, wait this long so that every other "
          "endpoint of theirs has matched too (DDS discovery), s.", 0.0, 10.0),
-    Spec("inertia_h_s", 4.0, "Inertia constant H, s.", 1e-3, 1e3),
-    Spec("damping_pu", 0.0, "Damping D, pu power per rad/s.", 0.0, 1e3),
-    Spec("p_mech_pu", 0.8, "Pre-fault mechanical power P_M, pu (< P_max).", 0.0, 1e3),
-    Spec("p_max_pu", 1.0, "Maximum transfer P_max, pu.", 1e-6, 1e3),
-    Spec("f0_hz", 50.0, "Nominal frequency f0, Hz.", 1.0, 1e3),
-    Spec("scenario", "initial_angle", "Fault scenario.", choices=tuple(SCENARIOS)),
-    Spec("delta0_rad", 0.2, "initial_angle: rotor angle right after the fault, rad.", -10.0, 10.0),
-    Spec("speed0_rad_s", 0.0, "initial_angle: speed deviation right after the fault, rad/s.", -1e3, 1e3),
-    Spec("step_p_mech_pu", 0.95, "mechanical_step: mechanical power during the step, pu.", 0.0, 1e3),
-    Spec("step_duration_s", 1e9, "mechanical_step: length of the step, s.", 1e-6, 1e9),
-    Spec("fault_p_max_pu", 0.0, "transfer_limit_fault: P_max while the fault is on, pu.", 0.0, 1e3),
-    Spec("clearing_time_s", 0.1, "transfer_limit_fault: clearing time, s.", 1e-6, 1e3),
-    Spec("battery_rating_pu", math.inf, "Battery inverter rating: commands are clipped to +-rating, pu.",
+    Spec("inertia_h_s", DEFAULTS["inertia_h_s"], "Inertia constant H, s.", 1e-3, 1e3),
+    Spec("damping_pu", DEFAULTS["damping_pu"], "Damping D, pu power per rad/s.", 0.0, 1e3),
+    Spec("p_mech_pu", DEFAULTS["p_mech_pu"], "Pre-fault mechanical power P_M, pu (< P_max).", 0.0, 1e3),
+    Spec("p_max_pu", DEFAULTS["p_max_pu"], "Maximum transfer P_max, pu.", 1e-6, 1e3),
+    Spec("f0_hz", DEFAULTS["f0_hz"], "Nominal frequency f0, Hz.", 1.0, 1e3),
+    Spec("scenario", DEFAULTS["scenario"], "Fault scenario.", choices=tuple(SCENARIOS)),
+    Spec("delta0_rad", DEFAULTS["delta0_rad"], "initial_angle: rotor angle right after the fault, rad.", -10.0, 10.0),
+    Spec("speed0_rad_s", DEFAULTS["speed0_rad_s"], "initial_angle: speed deviation right after the fault, rad/s.", -1e3, 1e3),
+    Spec("step_p_mech_pu", DEFAULTS["step_p_mech_pu"], "mechanical_step: mechanical power during the step, pu.", 0.0, 1e3),
+    Spec("step_duration_s", DEFAULTS["step_duration_s"], "mechanical_step: length of the step, s.", 1e-6, 1e9),
+    Spec("fault_p_max_pu", DEFAULTS["fault_p_max_pu"], "transfer_limit_fault: P_max while the fault is on, pu.", 0.0, 1e3),
+    Spec("clearing_time_s", DEFAULTS["clearing_time_s"], "transfer_limit_fault: clearing time, s.", 1e-6, 1e3),
+    Spec("battery_rating_pu", DEFAULTS["battery_rating_pu"], "Battery inverter rating: commands are clipped to +-rating, pu.",
          0.0, math.inf),
-    Spec("noise_angle_std_rad", 0.0, "PMU angle noise standard deviation, rad.", 0.0, 1.0),
-    Spec("noise_speed_std_rad_s", 0.0, "PMU speed noise standard deviation, rad/s.", 0.0, 10.0),
-    Spec("quantisation_rad", 0.0, "PMU angle resolution, rad (0: none).", 0.0, 1.0),
-    Spec("noise_seed", 0, "Seed of the measurement noise generator.", 0, 2**31 - 1),
-    Spec("command_timeout_s", 0.1, "realtime: a battery command older than this is dropped to zero, s.",
+    Spec("noise_angle_std_rad", DEFAULTS["noise_angle_std_rad"], "PMU angle noise standard deviation, rad.", 0.0, 1.0),
+    Spec("noise_speed_std_rad_s", DEFAULTS["noise_speed_std_rad_s"], "PMU speed noise standard deviation, rad/s.", 0.0, 10.0),
+    Spec("quantisation_rad", DEFAULTS["quantisation_rad"], "PMU angle resolution, rad (0: none).", 0.0, 1.0),
+    Spec("noise_seed", DEFAULTS["noise_seed"], "Seed of the measurement noise generator.", 0, 2**31 - 1),
+    Spec("command_timeout_s", DEFAULTS["command_timeout_s"], "realtime: a battery command older than this is dropped to zero, s.",
          1e-3, 100.0),
-    Spec("lockstep_timeout_s", 1.0, "lockstep: wall time to wait for a command before applying zero, s.",
+    Spec("lockstep_timeout_s", DEFAULTS["lockstep_timeout_s"], "lockstep: wall time to wait for a command before applying zero, s.",
          1e-3, 100.0),
 )
 
