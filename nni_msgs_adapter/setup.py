@@ -26,6 +26,7 @@ setup(
             "mcap_logger = nni_msgs_adapter.mcap_logger:main",
             "replay = nni_msgs_adapter.replay:main",
             "nni-replay = nni_msgs_adapter.replay:main",
+            "rerun_bridge = nni_msgs_adapter.rerun_bridge:main",
         ],
     },
 )

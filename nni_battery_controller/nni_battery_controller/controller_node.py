@@ -115,7 +115,7 @@ class ControllerNode(Node):
         self.counts["samples"] += 1
         w_hat = float(closed_loop_lyapunov(angle_dev, speed, x3, self._config.plant, self._config.ctrl))
         self._state_pub.publish(contract.controller_state_message(
-            stamp_ns, x3, w, power, saturated, w_hat, self._config.ctrl.battery_limit_pu))
+            stamp_ns, angle_dev, x3, w, power, saturated, w_hat, self._config.ctrl.battery_limit_pu))
 
     def _check_stale(self) -> None:
         if self._stale or self._last_arrival_ns is None:

@@ -29,6 +29,7 @@ from nni_msgs_adapter import contract
 from nni_msgs_adapter.cli_support import CliError, OneLineParser, atomic_output, battery_limit, positive_float, run_cli
 from nni_msgs_adapter.mcap_io import deserialize, read_messages
 from nni_msgs_adapter.mcap_logger import COUNTS_PREFIX
+from nni_msgs_adapter.rerun_bridge import READY_TEXT
 from nni_plant_sim.model import SmibParams
 
 #: Seconds the logger gets after the plant ends, for the last reliable messages to land.
@@ -57,6 +58,9 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--duration", type=positive_float, default=10.0, help="simulated seconds per run")
     parser.add_argument("--rate", type=pmu_rate, default=50.0, help="PMU reporting rate, frames/s (default 50)")
     parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (created)")
+    parser.add_argument("--rerun", nargs="+", metavar=("SINK", "PATH"), default=None,
+                        help="stream the runs live to Rerun: 'save PATH' (.rrd), 'serve' (web viewer on this "
+                             "machine, kept up until Ctrl-C) or 'spawn' (native viewer, needs a display)")
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
     return parser
@@ -101,6 +105,15 @@ class Processes:
         log.close()
         return proc.returncode
 
+    def wait_for_output(self, name: str, text: str, timeout_s: float) -> None:
+        """Wait until process ``name`` printed ``text``; CliError if it exits or times out first."""
+        deadline = time.monotonic() + timeout_s
+        while text not in self.output(name):
+            proc = self.children[name][0]
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise CliError(f"{name} did not start: {self.output(name).strip()[-300:]}")
+            time.sleep(0.05)
+
     def output(self, name: str) -> str:
         return (self.log_dir / f"{name}.log").read_text(errors="replace")
 
@@ -138,6 +151,19 @@ def trajectory_from_recording(path: Path, plant: SmibParams, ctrl: ControllerPar
     traj = Trajectory(plant, ctrl, (np.array(stamps) - t0) * 1e-9, arr[:, 0], arr[:, 1], x3, arr[:, 2], w,
                       saturated, np.empty(0))
     return traj, diagnostics
+
+
+def rerun_sink(words) -> dict:
+    """Bridge parameters for ``--rerun`` words: save PATH | serve | spawn."""
+    sink = words[0]
+    if sink not in ("save", "serve", "spawn") or (sink == "save") != (len(words) == 2) or len(words) > 2:
+        raise CliError("--rerun takes 'save PATH', 'serve' or 'spawn'")
+    if sink == "save":
+        path = Path(words[1])
+        if not path.parent.is_dir() or not os.access(path.parent, os.W_OK):
+            raise CliError(f"--rerun save: folder {path.parent} does not exist or is not writable")
+        return {"sink": "save", "path": str(path)}
+    return {"sink": sink}
 
 
 def run_one(args, b: float, env: dict, out: Path) -> dict:
@@ -180,6 +206,31 @@ def run_one(args, b: float, env: dict, out: Path) -> dict:
     return outcome
 
 
+def run_all(args, env: dict) -> list[dict]:
+    """One run per battery limit, each reported on one line as it finishes."""
+    runs = []
+    for b in args.b:
+        run = run_one(args, b, env, args.out)
+        runs.append(run)
+        lat = run["latency_ms"]
+        print(f"  b = {b:<5g} {'stable' if run['stable'] else 'LOST SYNCHRONISM':<17} "
+              f"max|d| {run['max_abs_angle_dev_rad']:8.4f} rad  max|P_ST| {run['max_abs_battery_power_pu']:.4f} pu"
+              f"  latency p50/p99/max {lat.get('p50', math.nan):.2f}/{lat.get('p99', math.nan):.2f}/"
+              f"{lat.get('max', math.nan):.2f} ms  dropped {run['dropped_samples']}  late {run['late_samples']}"
+              f"  wall {run['wall_time_s']:.1f} s")
+    return runs
+
+
+def wait_for_interrupt() -> None:
+    """Block until Ctrl-C (SIGINT) or SIGTERM."""
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        pass
+
+
 def logger_counts(output: str) -> dict:
     """The per-topic counts the logger printed at exit."""
     for line in output.splitlines():
@@ -203,16 +254,14 @@ def main(argv=None) -> int:
         env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain),
                    PYTHONUNBUFFERED="1")
         print(f"nni-demo: {args.mode}, {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}")
-        runs = []
-        for b in args.b:
-            run = run_one(args, b, env, args.out)
-            runs.append(run)
-            lat = run["latency_ms"]
-            print(f"  b = {b:<5g} {'stable' if run['stable'] else 'LOST SYNCHRONISM':<17} "
-                  f"max|d| {run['max_abs_angle_dev_rad']:8.4f} rad  max|P_ST| {run['max_abs_battery_power_pu']:.4f} pu"
-                  f"  latency p50/p99/max {lat.get('p50', math.nan):.2f}/{lat.get('p99', math.nan):.2f}/"
-                  f"{lat.get('max', math.nan):.2f} ms  dropped {run['dropped_samples']}  late {run['late_samples']}"
-                  f"  wall {run['wall_time_s']:.1f} s")
+        with Processes(env, args.out) as viewer:
+            if args.rerun:
+                viewer.start("rerun_bridge", "nni_msgs_adapter.rerun_bridge", rerun_sink(args.rerun))
+                viewer.wait_for_output("rerun_bridge", READY_TEXT, timeout_s=30.0)
+            runs = run_all(args, env)
+            if args.rerun and args.rerun[0] == "serve":
+                print("serving the Rerun stream (URL in rerun_bridge.log); Ctrl-C to stop")
+                wait_for_interrupt()
         summary = args.out / "summary.json"
         with atomic_output(summary) as handle:
             json.dump({"scenarios": runs}, handle, indent=2)

@@ -16,8 +16,9 @@ Mapping (see README, "Topics"):
   deviation, and effort = battery power P_ST acting on the rotor (pu), at each
   reporting instant (noise-free, for analysis).
 * ``controller/state`` sensor_msgs/JointState, one "joint" per internal signal,
-  values in ``position``: x3 (pu), w (pu), battery_power (pu), saturated (0/1),
-  w_hat (pu rad), battery_limit (pu, may be inf).
+  values in ``position``: angle_dev (the d = delta - delta_bar the law used, rad),
+  x3 (pu), w (pu), battery_power (pu), saturated (0/1), w_hat (pu rad),
+  battery_limit (pu, may be inf). Stamp = the measurement it answers.
 * ``plant/invariant_set`` geometry_msgs/PolygonStamped, latched: boundary of the
   invariant set Omega in the (angle deviation rad, speed deviation rad/s) plane.
 * ``diagnostics`` diagnostic_msgs/DiagnosticArray: loop health and counters.
@@ -47,7 +48,7 @@ SERVICE_START_FAULT = "plant/start_fault"
 
 ROTOR_JOINT = "rotor"
 BATTERY_JOINT = "battery"
-CONTROLLER_SIGNALS = ("x3", "w", "battery_power", "saturated", "w_hat", "battery_limit")
+CONTROLLER_SIGNALS = ("angle_dev", "x3", "w", "battery_power", "saturated", "w_hat", "battery_limit")
 
 # Every per-sample stream (measurements, commands, states): RELIABLE because the
 # lockstep handshake needs every sample answered, a lost command is a missed
@@ -164,15 +165,15 @@ def plant_state_from_message(msg: JointState) -> tuple[int, float, float, float]
     return ns_from_time(msg.header.stamp), msg.position[0], msg.velocity[0], msg.effort[0]
 
 
-def controller_state_message(stamp_ns: int, x3: float, w: float, battery_power_pu: float,
+def controller_state_message(stamp_ns: int, angle_dev_rad: float, x3: float, w: float, battery_power_pu: float,
                              saturated: bool, w_hat: float, battery_limit_pu: float) -> JointState:
     """The controller's internal signals, named in ``name``, values in ``position``."""
     msg = JointState()
     msg.header.stamp = time_from_ns(stamp_ns)
     msg.header.frame_id = "controller"
     msg.name = list(CONTROLLER_SIGNALS)
-    msg.position = [float(x3), float(w), float(battery_power_pu), 1.0 if saturated else 0.0,
-                    float(w_hat), float(battery_limit_pu)]
+    msg.position = [float(angle_dev_rad), float(x3), float(w), float(battery_power_pu),
+                    1.0 if saturated else 0.0, float(w_hat), float(battery_limit_pu)]
     return msg
 
 
