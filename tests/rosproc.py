@@ -89,7 +89,8 @@ class NodeProcess:
 
     def output(self) -> str:
         """Everything the process printed so far."""
-        self._log.flush()
+        if not self._log.closed:
+            self._log.flush()
         return self.log_path.read_text(errors="replace")
 
 
@@ -127,6 +128,7 @@ class Probe:
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node("probe", namespace=namespace or None, context=self.context)
         self.messages: dict[str, list] = {topic: [] for topic in topics}
+        self._publishers: dict[str, object] = {}
         self._lock = threading.Lock()
         for topic in topics:
             msg_class, name, qos = contract.endpoint(topic)
@@ -148,6 +150,27 @@ class Probe:
                 self.executor.spin_once(timeout_sec=0.05)
             except Exception:  # context shut down under us at close()
                 return
+
+    def _publisher(self, topic):
+        from nni_msgs_adapter import contract
+
+        if topic not in self._publishers:
+            self._publishers[topic] = self.node.create_publisher(*contract.endpoint(topic))
+        return self._publishers[topic]
+
+    def publish(self, topic, msg) -> None:
+        """Publish on a contract topic with its QoS (the publisher is made on first use)."""
+        self._publisher(topic).publish(msg)
+
+    def wait_matched(self, topic, count: int, timeout: float) -> bool:
+        """Wait until ``count`` subscriptions match this probe's publisher on ``topic``."""
+        publisher = self._publisher(topic)
+        deadline = time.monotonic() + timeout
+        while publisher.get_subscription_count() < count:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.02)
+        return True
 
     def take(self, topic) -> list:
         """A copy of what arrived on ``topic`` so far."""

@@ -6,8 +6,8 @@ Each valid measurement is one sample of :class:`nni_battery_controller.law.Sampl
 signals on ``controller/state``. The subscription callback is the controller's
 update step: event-driven sampling, O(1) work, nothing else on that path.
 
-Input hygiene (counted, reported in diagnostics): malformed or non-finite
-measurements, duplicates and out-of-order stamps are dropped. With no
+Input hygiene (counted, reported in diagnostics): malformed, non-finite or
+implausible measurements, duplicates and out-of-order stamps are dropped. With no
 measurement for ``stale_after_periods`` periods of wall time the controller
 commands zero battery power once and reports STALE. When data returns with a
 gap of more than that many periods in its own stamps (realtime: wall time;
@@ -47,6 +47,12 @@ PARAMETERS = (
 )
 
 
+#: Measurements beyond these are sensor faults, not a generator (a machine that
+#: slips poles for minutes stays far below 1e6 rad); they are dropped and counted.
+MAX_PLAUSIBLE_ANGLE_RAD = 1e6
+MAX_PLAUSIBLE_SPEED_RAD_S = 1e4
+
+
 class ControllerConfig:
     """Validated configuration built from parameter values (ValueError names the problem)."""
 
@@ -73,7 +79,7 @@ class ControllerNode(Node):
         self._last_arrival_ns = None
         self._stale = False
         self.counts = {"samples": 0, "malformed": 0, "non_finite": 0, "duplicate": 0, "out_of_order": 0,
-                       "stale_episodes": 0, "resets": 0}
+                       "implausible": 0, "stale_episodes": 0, "resets": 0}
 
         self._command_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_BATTERY_COMMAND))
         self._state_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_CONTROLLER_STATE))
@@ -95,6 +101,9 @@ class ControllerNode(Node):
             stamp_ns, delta, speed = contract.pmu_from_message(msg)
         except contract.ContractError as exc:
             self.counts["non_finite" if "non-finite" in str(exc) else "malformed"] += 1
+            return
+        if abs(delta) > MAX_PLAUSIBLE_ANGLE_RAD or abs(speed) > MAX_PLAUSIBLE_SPEED_RAD_S:
+            self.counts["implausible"] += 1
             return
         if self._last_stamp_ns is not None and stamp_ns <= self._last_stamp_ns:
             self.counts["duplicate" if stamp_ns == self._last_stamp_ns else "out_of_order"] += 1

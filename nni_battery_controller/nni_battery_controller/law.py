@@ -183,10 +183,16 @@ class SampledController:
         """Answer one measurement: returns ``(P_ST pu, w pu, saturated)`` and advances x3.
 
         A non-finite measurement must be dropped by the caller; here it raises
-        ValueError rather than poison x3.
+        ValueError rather than poison x3. Finite but absurd inputs (|d| near
+        1e308) could overflow: the output is then zero power and x3 restarts at
+        0, so the command is always finite and within +-b.
         """
         if not math.isfinite(angle_dev_rad):
             raise ValueError(f"angle deviation must be finite, got {angle_dev_rad}")
-        power, w, saturated, next_x3 = sampled_step(self.x3, angle_dev_rad, self.ctrl, self.plant, self.period_s)
-        self.x3 = float(next_x3)
-        return float(power), float(w), bool(saturated)
+        with np.errstate(over="ignore", invalid="ignore"):
+            power, w, saturated, next_x3 = sampled_step(self.x3, angle_dev_rad, self.ctrl, self.plant, self.period_s)
+        power, next_x3 = float(power), float(next_x3)
+        if not (math.isfinite(power) and math.isfinite(next_x3)):
+            power, next_x3 = 0.0, 0.0
+        self.x3 = next_x3
+        return power, float(w), bool(saturated)
