@@ -277,6 +277,25 @@ def test_killed_plant_leaves_the_controller_idle_and_alive(tmp_path):
             probe.close()
 
 
+def test_lockstep_plant_never_hangs_on_a_silent_controller(tmp_path):
+    """A command publisher that never answers: each sample times out, zero power, counted."""
+    domain = fresh_domain_id()
+    with node_processes(tmp_path, domain) as start:
+        probe = Probe(domain, (contract.TOPIC_PMU, contract.TOPIC_PLANT_STATE, contract.TOPIC_DIAGNOSTICS))
+        try:
+            assert probe.wait_matched(contract.TOPIC_BATTERY_COMMAND, 0, 1.0)  # a silent command publisher
+            plant = start("plant", PLANT, {"mode": "lockstep", "duration_s": 0.5, "wait_for_subscribers": 1,
+                                           "lockstep_timeout_s": 0.05})
+            assert plant.wait(timeout=60) == 0
+            time.sleep(0.3)
+            diag = plant_diagnostics(probe)
+        finally:
+            probe.close()
+    assert int(diag["deadline_misses"]) == 25 and int(diag["samples"]) == 25
+    powers = [contract.plant_state_from_message(m)[3] for m in probe.take(contract.TOPIC_PLANT_STATE)]
+    assert len(powers) == 26 and set(powers) == {0.0}
+
+
 def test_logger_survives_publishers_that_come_and_go(tmp_path):
     from nni_msgs_adapter.mcap_io import read_messages
 
