@@ -12,11 +12,12 @@ import itertools
 import os
 import signal
 import subprocess
-import sys
 import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
+
+from nni_battery_controller.demo import node_command
 
 _domain_counter = itertools.count()
 
@@ -36,24 +37,6 @@ def ros_env(domain_id: int, **extra) -> dict:
                PYTHONUNBUFFERED="1", RCUTILS_COLORIZED_OUTPUT="0")
     env.update({k: str(v) for k, v in extra.items()})
     return env
-
-
-def node_command(module: str, params: dict | None = None, ros_args: tuple = ()) -> list[str]:
-    """``python -m module --ros-args -p k:=v ...`` with YAML-style values (.inf for inf)."""
-    cmd = [sys.executable, "-m", module]
-    args = list(ros_args)
-    for key, value in (params or {}).items():
-        args += ["-p", f"{key}:={yaml_value(value)}"]
-    return cmd + (["--ros-args", *args] if args else [])
-
-
-def yaml_value(value) -> str:
-    """A parameter value as ros2 command-line YAML."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, float) and value == float("inf"):
-        return ".inf"
-    return str(value)
 
 
 class NodeProcess:

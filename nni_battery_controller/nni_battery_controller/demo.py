@@ -26,7 +26,15 @@ from nni_battery_controller.cli import PAPER_BATTERY_LIMITS
 from nni_battery_controller.law import ControllerParams
 from nni_battery_controller.simulate import Trajectory, assess
 from nni_msgs_adapter import contract
-from nni_msgs_adapter.cli_support import CliError, OneLineParser, atomic_output, battery_limit, positive_float, run_cli
+from nni_msgs_adapter.cli_support import (
+    CliError,
+    OneLineParser,
+    atomic_output,
+    battery_limit,
+    float_within,
+    positive_float,
+    run_cli,
+)
 from nni_msgs_adapter.mcap_io import deserialize, read_messages
 from nni_msgs_adapter.mcap_logger import COUNTS_PREFIX
 from nni_msgs_adapter.rerun_bridge import READY_TEXT
@@ -38,16 +46,6 @@ DRAIN_S = 0.5
 STOP_GRACE_S = 10.0
 
 
-def pmu_rate(text: str) -> float:
-    """argparse type: PMU reporting rate, 10 to 1000 frames/s (IEEE C37.118 practice)."""
-    import argparse
-
-    rate = positive_float(text)
-    if not 10.0 <= rate <= 1000.0:
-        raise argparse.ArgumentTypeError(f"rate must be within 10..1000 frames/s, got {text}")
-    return rate
-
-
 def build_parser() -> OneLineParser:
     """The nni-demo command line."""
     parser = OneLineParser(prog="nni-demo", description=__doc__)
@@ -56,7 +54,7 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--b", type=battery_limit, nargs="+", default=list(PAPER_BATTERY_LIMITS), metavar="B",
                         help="battery limits in pu, one run each (default: 0 0.2 0.3 inf)")
     parser.add_argument("--duration", type=positive_float, default=10.0, help="simulated seconds per run")
-    parser.add_argument("--rate", type=pmu_rate, default=50.0, help="PMU reporting rate, frames/s (default 50)")
+    parser.add_argument("--rate", type=float_within(10.0, 1000.0, "frames/s"), default=50.0, help="PMU reporting rate, frames/s (default 50)")
     parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (created)")
     parser.add_argument("--rerun", nargs="+", metavar=("SINK", "PATH"), default=None,
                         help="stream the runs live to Rerun: 'save PATH' (.rrd), 'serve' (web viewer on this "
@@ -71,13 +69,21 @@ def recording_name(b: float) -> str:
     return f"paper_b{'inf' if math.isinf(b) else f'{b:g}'}.mcap"
 
 
-def node_command(module: str, params: dict) -> list[str]:
-    """The process for a node module, with ROS parameters (.inf for inf)."""
-    args = []
-    for key, value in params.items():
-        text = ".inf" if value == math.inf else ("true" if value is True else "false" if value is False else value)
-        args += ["-p", f"{key}:={text}"]
-    return [sys.executable, "-m", module, "--ros-args", *args]
+def node_command(module: str, params: dict | None = None, ros_args: tuple = ()) -> list[str]:
+    """``python -m module --ros-args [ros_args] -p k:=v ...``, values as ROS command-line YAML."""
+    args = list(ros_args)
+    for key, value in (params or {}).items():
+        args += ["-p", f"{key}:={parameter_text(value)}"]
+    return [sys.executable, "-m", module, *(["--ros-args", *args] if args else [])]
+
+
+def parameter_text(value) -> str:
+    """A parameter value as ROS command-line YAML (.inf for inf, true/false for bools)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float) and math.isinf(value):
+        return ".inf" if value > 0 else "-.inf"
+    return str(value)
 
 
 class Processes:

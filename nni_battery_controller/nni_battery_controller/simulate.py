@@ -24,7 +24,6 @@ from scipy.integrate import solve_ivp
 from nni_battery_controller.law import (
     ControllerParams,
     closed_loop_lyapunov,
-    is_saturated,
     sampled_step,
     saturate,
     saturation_input,

@@ -40,26 +40,34 @@ def battery_limit(text: str) -> float:
     return value
 
 
-def positive_float(text: str) -> float:
-    """argparse type for a finite number > 0."""
+def _finite(text: str, condition, expected: str) -> float:
+    """Parse a finite number meeting ``condition``; ArgumentTypeError saying what was expected."""
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+        value = math.nan
+    if not (math.isfinite(value) and condition(value)):
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
     return value
+
+
+def positive_float(text: str) -> float:
+    """argparse type for a finite number > 0."""
+    return _finite(text, lambda value: value > 0, "a finite number > 0")
 
 
 def finite_float(text: str) -> float:
     """argparse type for any finite number."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
+    return _finite(text, lambda value: True, "a finite number")
+
+
+def float_within(low: float, high: float, unit: str):
+    """argparse type for a number within [low, high] (``unit`` names it in the error)."""
+
+    def parse(text: str) -> float:
+        return _finite(text, lambda value: low <= value <= high, f"{low:g}..{high:g} {unit}")
+
+    return parse
 
 
 def writable_output(text: str) -> Path:
