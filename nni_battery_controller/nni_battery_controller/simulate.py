@@ -156,24 +156,34 @@ def simulate_continuous(
         ]
 
     def mode_at(z, arriving_from):
-        """Mode to continue in at state z, given the mode the run arrives from."""
+        """Mode to continue in from state z; on the surface |w| = b the fields decide.
+
+        Off the surface the sign of |w| - b decides (only at the start). On it,
+        unsaturated if that field points inside, saturated if that one points
+        outside, sliding if neither; when both do (a repelling surface, or a
+        grazing touch) the run keeps the mode it arrives from.
+        """
         w = w_of(z)
-        if b == 0.0 or (abs(w) > b and arriving_from != SATURATED):
-            return SATURATED, (1.0 if w >= 0 else -1.0)
-        if b == math.inf or abs(w) < b and arriving_from != UNSATURATED:
+        if b == 0.0:
+            return SATURATED, 1.0
+        if b == math.inf:
             return UNSATURATED, 0.0
         side = 1.0 if w >= 0 else -1.0
+        if arriving_from is None and abs(w) != b:
+            return (UNSATURATED, 0.0) if abs(w) < b else (SATURATED, side)
         rate_unsat, rate_sat = w_rates(z)
-        if side * rate_unsat < 0:
-            return UNSATURATED, 0.0
-        if side * rate_sat > 0:
+        inward_unsat, outward_sat = side * rate_unsat < 0, side * rate_sat > 0
+        if inward_unsat and outward_sat and arriving_from in (UNSATURATED, SATURATED):
+            return (UNSATURATED, 0.0) if arriving_from == UNSATURATED else (SATURATED, side)
+        if outward_sat:
             return SATURATED, side
+        if inward_unsat:
+            return UNSATURATED, 0.0
         return SLIDING, side
 
     z = np.concatenate((scenario.initial_state(plant), [0.0]))
     t = 0.0
-    w0 = w_of(z)
-    mode, side = (UNSATURATED, 0.0) if abs(w0) < b else mode_at(z, None)
+    mode, side = mode_at(z, None)
     stops = sorted({*(tb for tb in scenario.breakpoints() if 0 < tb < duration_s), duration_s})
     pieces_t, pieces_z, pieces_sat, switches = [], [], [], []
     while t < duration_s:
@@ -192,7 +202,12 @@ def simulate_continuous(
             pieces_sat.append(np.full(inside.shape, mode != UNSATURATED))
         z, t = sol.y[:, -1], t_end
         if sol.status == 1:  # a mode boundary was reached
-            new_mode, side = mode_at(z, mode)
+            if mode == SLIDING:
+                # The event that fired says which field turned; at its root that
+                # rate is zero, so it must not be re-read from the state.
+                new_mode, side = (UNSATURATED, 0.0) if sol.t_events[0].size else (SATURATED, side)
+            else:
+                new_mode, side = mode_at(z, mode)
             if (new_mode == UNSATURATED) != (mode == UNSATURATED):
                 switches.append(t)
             mode = new_mode
