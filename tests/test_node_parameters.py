@@ -17,7 +17,7 @@ PLANT = "nni_plant_sim.plant_node"
 
 @pytest.mark.parametrize("module, params, reason", [
     (CONTROLLER, {"gain_k": 2.0}, "K must be less than L"),
-    (CONTROLLER, {"battery_limit_pu": -0.1}, "b must be non-negative"),
+    (CONTROLLER, {"battery_limit_pu": -0.1}, "battery_limit_pu out of range Min: 0.0"),
     (PLANT, {"p_mech_pu": 1.5}, "P_M must be less than P_max"),
     (PLANT, {"mode": "fast"}, "mode must be one of realtime, lockstep"),
     (PLANT, {"pmu_rate_hz": 5.0}, "pmu_rate_hz"),

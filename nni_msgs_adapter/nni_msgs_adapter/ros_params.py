@@ -9,7 +9,6 @@ and an invalid change is rejected with that reason, the old values kept.
 from __future__ import annotations
 
 import importlib
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,14 +33,13 @@ class Spec:
         """ParameterDescriptor with the range for numbers and choices in the text."""
         text = self.description + (f" One of: {', '.join(self.choices)}." if self.choices else "")
         descriptor = ParameterDescriptor(name=self.name, description=text, read_only=self.read_only)
-        if self.low is not None and self.high is not None:
-            if isinstance(self.default, bool):
-                pass
-            elif isinstance(self.default, int):
-                descriptor.integer_range = [IntegerRange(from_value=int(self.low), to_value=int(self.high), step=0)]
-            elif isinstance(self.default, float) and math.isfinite(self.high):
-                descriptor.floating_point_range = [FloatingPointRange(
-                    from_value=float(self.low), to_value=float(self.high), step=0.0)]
+        if self.low is None or self.high is None or isinstance(self.default, bool):
+            return descriptor
+        if isinstance(self.default, int):
+            descriptor.integer_range = [IntegerRange(from_value=int(self.low), to_value=int(self.high), step=0)]
+        else:  # an infinite upper bound works (b may be .inf)
+            descriptor.floating_point_range = [FloatingPointRange(
+                from_value=float(self.low), to_value=float(self.high), step=0.0)]
         return descriptor
 
 
