@@ -103,7 +103,7 @@ def q1_matrix(inertia_m: float, gain_k: float, gain_l: float) -> np.ndarray:
     return np.array([[inertia_m, 0.0, 0.0], [0.0, gain_l, -1.0], [0.0, -1.0, 1.0 / gain_k]])
 
 
-def closed_loop_lyapunov(angle_dev_rad, speed_rad_s, x3, plant: SmibParams, ctrl: ControllerParams):
+def closed_loop_lyapunov(angle_dev_rad, speed_rad_s, x3, plant: SmibParams, ctrl: ControllerParams, saturated=None):
     """Candidate W_hat = V1 + V3 - F of the loop (H1, H3-hat) (paper section IV); vectorised.
 
     ``V1 = (M/2) d'^2``, ``V3 = x3^2 / (2K)`` and F as the paper defines it, by
@@ -115,14 +115,17 @@ def closed_loop_lyapunov(angle_dev_rad, speed_rad_s, x3, plant: SmibParams, ctrl
 
     with ``G(d) = int_0^d g``. Within a mode W_hat does not increase along
     trajectories; at a mode switch it jumps (see README, "What the theory
-    promises and what we check").
+    promises and what we check"). ``saturated`` (bool, broadcastable), when
+    given, is the mode in force instead of the one read from w: a run sliding
+    on |w| = b has |w| within rounding of b on either side, and the mode must
+    not flicker with it.
     """
     b = ctrl.battery_limit_pu
     w = saturation_input(x3, angle_dev_rad, ctrl, plant)
     unsaturated = x3 * angle_dev_rad - 0.5 * ctrl.gain_l * np.square(angle_dev_rad)
     with np.errstate(invalid="ignore"):
-        saturated = restoring_energy(angle_dev_rad, plant) + np.sign(w) * b * angle_dev_rad
-    f = np.where(is_saturated(w, b), saturated, unsaturated)
+        saturated_f = restoring_energy(angle_dev_rad, plant) + np.sign(w) * b * angle_dev_rad
+    f = np.where(is_saturated(w, b) if saturated is None else saturated, saturated_f, unsaturated)
     return 0.5 * plant.inertia_m * np.square(speed_rad_s) + np.square(x3) / (2.0 * ctrl.gain_k) - f
 
 

@@ -20,12 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.integrate import solve_ivp
+from scipy.optimize import brentq
 
 from nni_battery_controller.law import (
     ControllerParams,
     closed_loop_lyapunov,
     sampled_step,
-    saturate,
     saturation_input,
     x3_rate,
 )
@@ -78,13 +78,9 @@ class Trajectory:
     @property
     def w_hat(self) -> np.ndarray:
         """Closed-loop Lyapunov candidate W_hat along the trajectory, pu*rad."""
-        return closed_loop_lyapunov(self.angle_dev_rad, self.speed_rad_s, self.x3, self.plant, self.ctrl)
-
-
-def _loop_outputs(delta, speed, x3, saturated, plant: SmibParams, ctrl: ControllerParams):
-    """Battery power and w for the given states and (held or current) mode."""
-    w = saturation_input(x3, delta - plant.delta_bar_rad, ctrl, plant)
-    return np.where(saturated, saturate(w, ctrl.battery_limit_pu), w), w
+        return closed_loop_lyapunov(
+            self.angle_dev_rad, self.speed_rad_s, self.x3, self.plant, self.ctrl, saturated=self.saturated
+        )
 
 
 def simulate_continuous(
@@ -112,7 +108,15 @@ def simulate_continuous(
 
     The paper's rule counts |w| = b as saturated, so sliding is reported as
     saturated. Scenario breakpoints also stop the integration. Outputs are the
-    dense interpolants sampled every ``output_step_s``.
+    dense interpolants sampled every ``output_step_s``; the battery power is the
+    mode's own (exactly +-b when saturated or sliding).
+
+    solve_ivp looks for events only as sign changes between its steps (which
+    grow to 0.1 s and more in a smooth mode), so a brief excursion of w across
+    +-b inside one step would go unnoticed. Each step is therefore also scanned
+    on its dense output every ``SCAN_STEP_S`` and at every output instant, and
+    the first crossing found is located by root finding and handled like an
+    event: no output sample is left in a mode the law does not allow there.
     """
     b = ctrl.battery_limit_pu
     delta_bar = plant.delta_bar_rad
@@ -185,7 +189,7 @@ def simulate_continuous(
     t = 0.0
     mode, side = mode_at(z, None)
     stops = sorted({*(tb for tb in scenario.breakpoints() if 0 < tb < duration_s), duration_s})
-    pieces_t, pieces_z, pieces_sat, switches = [], [], [], []
+    pieces_t, pieces_z, pieces_sat, pieces_side, switches = [], [], [], [], []
     while t < duration_s:
         stop = next(s for s in stops if s > t)
         sol = solve_ivp(
@@ -195,11 +199,16 @@ def simulate_continuous(
         if sol.status < 0:
             raise RuntimeError(f"integration failed at t={t:.6f} s: {sol.message}")
         t_end = sol.t[-1]
+        crossing = _first_crossing(sol, t, t_end, events_for(mode, side) if mode != SLIDING else None, grid)
+        if crossing is not None:
+            t_end = crossing
+            sol.status, sol.y = 1, sol.sol(crossing)[:, None]
         inside = grid[(grid >= t) & (grid < t_end)] if t_end < duration_s else grid[grid >= t]
         if inside.size:
             pieces_t.append(inside)
             pieces_z.append(sol.sol(inside))
             pieces_sat.append(np.full(inside.shape, mode != UNSATURATED))
+            pieces_side.append(np.full(inside.shape, side))
         z, t = sol.y[:, -1], t_end
         if sol.status == 1:  # a mode boundary was reached
             if mode == SLIDING:
@@ -218,11 +227,43 @@ def simulate_continuous(
     t_all = np.concatenate(pieces_t)
     z_all = np.concatenate(pieces_z, axis=1)
     sat_all = np.concatenate(pieces_sat)
-    power, w = _loop_outputs(z_all[0], z_all[1], z_all[2], sat_all, plant, ctrl)
+    w = saturation_input(z_all[2], z_all[0] - delta_bar, ctrl, plant)
+    power = w.copy()
+    power[sat_all] = np.concatenate(pieces_side)[sat_all] * b
     return Trajectory(plant, ctrl, t_all, z_all[0], z_all[1], z_all[2], power, w, sat_all, np.array(switches))
 
 
 UNSATURATED, SATURATED, SLIDING = "unsaturated", "saturated", "sliding"
+#: Spacing of the scan for mode boundaries crossed inside one integrator step, s.
+SCAN_STEP_S = 2.5e-4
+
+
+def _first_crossing(sol, t0: float, t1: float, events, grid: np.ndarray) -> float | None:
+    """First instant in (t0, t1) where one of ``events`` changes sign in its direction.
+
+    Scans ``sol``'s dense output at ``SCAN_STEP_S`` spacing and at the output
+    instants of ``grid`` in the interval, then locates the crossing with brentq.
+    None when no event function is given or none is crossed inside the interval
+    (a crossing at t1 itself is solve_ivp's own event).
+    """
+    if not events or t1 <= t0:
+        return None
+    scan = np.union1d(np.linspace(t0, t1, int(math.ceil((t1 - t0) / SCAN_STEP_S)) + 1),
+                      grid[(grid > t0) & (grid < t1)])
+    states = sol.sol(scan)
+    first = None
+    for event in events:
+        values = event(scan, states)  # the unsaturated and saturated events are vectorised
+        crossed = (values[:-1] * event.direction < 0) & (values[1:] * event.direction > 0)
+        crossed[-1] = False  # the step's own end: solve_ivp's event, already located
+        # A run that has just switched starts on the surface, within rounding of it.
+        crossed[0] &= abs(values[0]) > 1e-12
+        hits = np.flatnonzero(crossed)
+        if hits.size:
+            i = hits[0]
+            root = brentq(lambda tau: event(tau, sol.sol(tau)), scan[i], scan[i + 1], xtol=1e-15, rtol=1e-15)
+            first = root if first is None else min(first, root)
+    return first
 
 
 def _event(fun, direction: int):

@@ -161,8 +161,15 @@ def equal_area_margin(delta0_rad: float, plant: SmibParams) -> float:
 
 
 def eac_stable(delta0_rad: float, plant: SmibParams) -> bool:
-    """True when the equal area criterion holds for a release at rest from ``delta0``."""
-    return equal_area_margin(delta0_rad, plant) < 0.0
+    """True when the undamped machine released at rest from ``delta0`` stays in synchronism.
+
+    The equal area criterion (a negative margin) decides it below the unstable
+    equilibrium ``pi - delta_bar``. From there on P_E <= P_M and the rotor
+    accelerates away (the margin, which has a local maximum 0 at that point, is
+    negative again beyond it and must not be read there). ``delta0`` in
+    (-pi, pi) rad.
+    """
+    return delta0_rad < math.pi - plant.delta_bar_rad and equal_area_margin(delta0_rad, plant) < 0.0
 
 
 def _bisect(fun, lo: float, hi: float, tol: float = 1e-13) -> float:
