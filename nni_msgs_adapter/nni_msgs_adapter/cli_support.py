@@ -71,15 +71,24 @@ def float_within(low: float, high: float, unit: str):
 
 
 def writable_output(text: str) -> Path:
-    """argparse type for an output file whose folder exists and is writable."""
+    """argparse type for an output file whose folder exists and takes new files.
+
+    Probed by creating (and removing) a temporary file there, as
+    :func:`atomic_output` will: permission bits alone say yes to root on
+    read-only mounts and pseudo file systems such as /proc.
+    """
     path = Path(text)
     folder = path.parent if str(path.parent) else Path(".")
     if path.is_dir():
         raise argparse.ArgumentTypeError(f"{text} is a directory, expected a file path")
     if not folder.is_dir():
         raise argparse.ArgumentTypeError(f"output folder {folder} does not exist")
-    if not os.access(folder, os.W_OK):
-        raise argparse.ArgumentTypeError(f"output folder {folder} is not writable")
+    try:
+        fd, probe = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".probe")
+    except OSError as exc:
+        raise argparse.ArgumentTypeError(f"output folder {folder} is not writable ({exc.strerror})") from None
+    os.close(fd)
+    os.unlink(probe)
     return path
 
 
