@@ -34,7 +34,11 @@ trajectory while the amount of data per update stays bounded.
 from __future__ import annotations
 
 import math
+import os
+import shutil
+import sys
 import urllib.parse
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -177,6 +181,17 @@ def blueprint(
     )
 
 
+def display_missing() -> bool:
+    """True where a native viewer cannot open a window (Linux without X11 or Wayland)."""
+    return sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def _put_venv_rerun_on_path() -> None:
+    """rr.spawn runs ``rerun`` from PATH; a venv entry point started by its full path has its bin dir off PATH."""
+    if shutil.which("rerun") is None:
+        os.environ["PATH"] = os.pathsep.join((str(Path(sys.executable).parent), os.environ.get("PATH", "")))
+
+
 def open_recording(
     app_id: str,
     sink: tuple[str, str | int | None],
@@ -221,6 +236,7 @@ def open_recording(
         rr.serve_web_viewer(open_browser=False)
         url = f"http://localhost:9090/?url={urllib.parse.quote(grpc_url, safe='')}"
     elif kind == "spawn":
+        _put_venv_rerun_on_path()
         recording.spawn()
     else:
         raise ValueError(f"unknown Rerun sink {kind!r}: expected 'save', 'serve' or 'spawn'")

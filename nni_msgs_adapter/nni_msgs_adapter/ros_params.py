@@ -43,12 +43,11 @@ class Spec:
         return descriptor
 
 
-def load_defaults(package: str, filename: str, node_name: str) -> dict:
-    """A node's default parameter values from its package's ``config/<filename>``.
+def config_path(package: str, filename: str) -> Path:
+    """``config/<filename>`` of ``package``.
 
     Looks in the installed share directory (colcon install, found through the
     ament index) first, then beside the package's source (editable install).
-    The file is a ROS params file keyed ``/**/<node_name>``.
     """
     candidates = []
     try:
@@ -61,9 +60,17 @@ def load_defaults(package: str, filename: str, node_name: str) -> dict:
     candidates.append(Path(module_file).resolve().parent.parent / "config" / filename)
     for path in candidates:
         if path.is_file():
-            with open(path) as handle:
-                return yaml.safe_load(handle)[f"/**/{node_name}"]["ros__parameters"]
+            return path
     raise FileNotFoundError(f"no config/{filename} for {package} in {', '.join(map(str, candidates))}")
+
+
+def load_defaults(package: str, filename: str, node_name: str) -> dict:
+    """A node's default parameter values from its package's ``config/<filename>`` (:func:`config_path`).
+
+    The file is a ROS params file keyed ``/**/<node_name>``.
+    """
+    with open(config_path(package, filename)) as handle:
+        return yaml.safe_load(handle)[f"/**/{node_name}"]["ros__parameters"]
 
 
 def declare(node, specs) -> None:

@@ -1,0 +1,214 @@
+"""Read an NNI recording (MCAP) into per-generator sample arrays.
+
+One generator is one namespace ('' for the root, ``/gen1``, ...): its
+``plant/state`` samples, the ``controller/state`` signals aligned to them by
+stamp, the invariant-set polygon and the plant's last diagnostics. Used by the
+demo's summary, replay's Rerun conversion and the tests, so that a recording is
+read one way everywhere.
+
+No node and no ROS graph: messages are decoded with :func:`mcap_io.deserialize`
+(rclpy's serializer, imported on first use), so this works without rclpy.init.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from nni_msgs_adapter import contract
+from nni_msgs_adapter.mcap_io import RecordedMessage, RecordingError, deserialize, message_class, read_messages
+
+#: Contract topics published once per sample (pmu, command, states, /clock).
+SAMPLE_TOPICS = (contract.TOPIC_PMU, contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_PLANT_STATE,
+                 contract.TOPIC_CONTROLLER_STATE, contract.TOPIC_CLOCK)
+
+# Longest contract name first, so that a name never matches a shorter suffix of itself.
+_RELATIVE_TOPICS = sorted((name for name in contract.TOPICS if not name.startswith("/")), key=len, reverse=True)
+
+
+def split_topic(topic: str) -> tuple[str, str] | None:
+    """``(namespace, contract topic)`` of a fully qualified name, or None if outside the contract.
+
+    ``/gen1/plant/state`` -> ``("/gen1", "plant/state")``, ``/pmu`` -> ``("", "pmu")``,
+    ``/clock`` -> ``("", "/clock")`` (absolute in the contract).
+    """
+    if topic == contract.TOPIC_CLOCK:
+        return "", topic
+    for name in _RELATIVE_TOPICS:
+        if topic.endswith("/" + name):
+            return topic[: -len(name) - 1], name
+    return None
+
+
+@dataclass(frozen=True)
+class GeneratorRun:
+    """One generator's run as recorded. Sample arrays share shape ``(n,)``, ordered by stamp.
+
+    Attributes
+    ----------
+    namespace : str
+        ``""`` (root namespace) or e.g. ``"/gen1"``.
+    stamp_ns : numpy.ndarray of int64
+        ``plant/state`` header stamps, ns (simulated time in lockstep, epoch time in realtime).
+    delta_rad : numpy.ndarray
+        Rotor angle delta, rad.
+    speed_rad_s : numpy.ndarray
+        Speed deviation delta' = omega - omega0, rad/s.
+    battery_power_pu : numpy.ndarray
+        Battery power P_ST acting on the rotor from this sample on, pu.
+    signals : dict of str to numpy.ndarray
+        ``controller/state`` signals (``contract.CONTROLLER_SIGNALS``) at the same stamps; NaN
+        where the controller did not report (the final state of a run answers no sample).
+    omega_boundary : numpy.ndarray or None
+        Boundary of the invariant set Omega, ``(m, 2)`` points (angle deviation rad, speed rad/s),
+        from the last ``plant/invariant_set``; None if not recorded.
+    diagnostics : dict of str to str
+        Key/values of the plant's last ``diagnostics`` status (empty if none was recorded).
+    """
+
+    namespace: str
+    stamp_ns: np.ndarray
+    delta_rad: np.ndarray
+    speed_rad_s: np.ndarray
+    battery_power_pu: np.ndarray
+    signals: dict = field(default_factory=dict)
+    omega_boundary: np.ndarray | None = None
+    diagnostics: dict = field(default_factory=dict)
+
+    @property
+    def t_s(self) -> np.ndarray:
+        """Time since the first sample, s."""
+        return (self.stamp_ns - self.stamp_ns[0]) * 1e-9
+
+    @property
+    def answered(self) -> np.ndarray:
+        """Samples the controller answered (has a ``controller/state`` at their stamp)."""
+        return ~np.isnan(self.signals["angle_dev"])
+
+    @property
+    def saturated(self) -> np.ndarray:
+        """Saturation flag per sample (False where the controller did not report)."""
+        return self.signals["saturated"] > 0.5
+
+    @property
+    def battery_limit_pu(self) -> float:
+        """The controller's battery limit b (pu, may be inf); NaN if the controller never reported."""
+        limits = self.signals["battery_limit"]
+        known = limits[~np.isnan(limits)]
+        return float(known[0]) if known.size else math.nan
+
+
+@dataclass
+class _Collected:
+    states: list = field(default_factory=list)
+    signals: dict = field(default_factory=dict)
+    omega_boundary: np.ndarray | None = None
+    diagnostics: dict = field(default_factory=dict)
+
+
+def read_generator_runs(path: str | os.PathLike[str]) -> dict[str, GeneratorRun]:
+    """Every generator of a recording, by namespace.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        An MCAP recording, finished or cut short (see :func:`mcap_io.read_messages`).
+
+    Returns
+    -------
+    dict of str to GeneratorRun
+        One entry per namespace that has ``plant/state`` messages, in namespace order.
+
+    Raises
+    ------
+    RecordingError
+        If the file cannot be read, a channel's message type is unknown or is not the one the
+        contract gives its topic, a contract message is malformed, or no namespace has
+        ``plant/state``.
+    """
+    collected: dict[str, _Collected] = {}
+    checked_topics: set[str] = set()
+    for record in read_messages(path):
+        if record.topic not in checked_topics:
+            check_message_type(path, record)
+            checked_topics.add(record.topic)
+        split = split_topic(record.topic)
+        if split is None or split[1] == contract.TOPIC_CLOCK:
+            continue
+        namespace, name = split
+        run = collected.setdefault(namespace, _Collected())
+        try:
+            _collect(run, name, deserialize(record.type_name, record.cdr_bytes))
+        except (contract.ContractError, RecordingError) as error:
+            raise RecordingError(f"{path}: malformed message on {record.topic}: {error}") from None
+    runs = {ns: _generator_run(ns, run) for ns, run in sorted(collected.items()) if run.states}
+    check_has_plant_state(path, [ns + "/" + contract.TOPIC_PLANT_STATE for ns in runs])
+    return runs
+
+
+def read_generator_run(path: str | os.PathLike[str], namespace: str | None = None) -> GeneratorRun:
+    """The run of one generator: the one in ``namespace``, or the only one if None.
+
+    Raises
+    ------
+    RecordingError
+        As :func:`read_generator_runs`; also if ``namespace`` is None and the recording holds
+        several generators, or ``namespace`` holds none.
+    """
+    runs = read_generator_runs(path)
+    if namespace is None:
+        if len(runs) > 1:
+            raise RecordingError(f"{path}: holds generators in {', '.join(runs)}; choose one namespace")
+        return next(iter(runs.values()))
+    if namespace not in runs:
+        raise RecordingError(f"{path}: no {contract.TOPIC_PLANT_STATE} in namespace {namespace!r}")
+    return runs[namespace]
+
+
+def check_message_type(path: str | os.PathLike[str], record: RecordedMessage) -> None:
+    """Raise RecordingError unless the record's type is installed and, on a contract topic, the contract's."""
+    try:
+        message_class(record.type_name)
+    except RecordingError as error:
+        raise RecordingError(f"{path}: topic {record.topic}: {error}") from None
+    split = split_topic(record.topic)
+    if split is not None:
+        expected = contract.TOPICS[split[1]][0]
+        if record.type_name != expected:
+            raise RecordingError(f"{path}: topic {record.topic} carries {record.type_name}, "
+                                 f"the contract gives it {expected}")
+
+
+def check_has_plant_state(path: str | os.PathLike[str], topics) -> None:
+    """Raise RecordingError unless one of ``topics`` is a ``plant/state`` (in any namespace)."""
+    if not any((split_topic(topic) or ("", ""))[1] == contract.TOPIC_PLANT_STATE for topic in topics):
+        raise RecordingError(f"{path}: no {contract.TOPIC_PLANT_STATE} messages in any namespace: "
+                             "not a recording of a plant run")
+
+
+def _collect(run: _Collected, name: str, msg) -> None:
+    if name == contract.TOPIC_PLANT_STATE:
+        run.states.append(contract.plant_state_from_message(msg))
+    elif name == contract.TOPIC_CONTROLLER_STATE:
+        stamp_ns, values = contract.controller_state_from_message(msg)
+        run.signals[stamp_ns] = values
+    elif name == contract.TOPIC_INVARIANT_SET:
+        run.omega_boundary = np.array([(p.x, p.y) for p in msg.polygon.points], dtype=np.float64).reshape(-1, 2)
+    elif name == contract.TOPIC_DIAGNOSTICS:
+        values = contract.diagnostic_values(msg, "plant")
+        if values is not None:
+            run.diagnostics = values
+
+
+def _generator_run(namespace: str, run: _Collected) -> GeneratorRun:
+    states = sorted(run.states)
+    stamps = np.array([s[0] for s in states], dtype=np.int64)
+    values = np.array([s[1:] for s in states], dtype=np.float64)
+    signals = {name: np.array([run.signals.get(stamp, {}).get(name, math.nan) for stamp in stamps.tolist()])
+               for name in contract.CONTROLLER_SIGNALS}
+    boundary = run.omega_boundary if run.omega_boundary is not None and len(run.omega_boundary) >= 2 else None
+    return GeneratorRun(namespace, stamps, values[:, 0], values[:, 1], values[:, 2], signals, boundary,
+                        run.diagnostics)

@@ -1,0 +1,109 @@
+"""Replay node: publishes a planned recording (:class:`replay.Playback`) with its original timing.
+
+The ROS half of ``nni-replay``; the command line, the reading and the planning
+are in :mod:`nni_msgs_adapter.replay`, which imports this module only for ROS
+playback. Messages go out as recorded CDR bytes (``publish`` of ``bytes``), on
+their recorded topic names, with the planned QoS. One timer drives the
+playback: each callback publishes every message that is due and re-arms the
+timer for the next one, so nothing sleeps and signals are handled at once.
+Scheduling uses the monotonic clock, never ROS time (which ``--clock`` itself
+may be driving).
+"""
+
+from __future__ import annotations
+
+import time
+
+from rclpy.node import Node
+from rclpy.task import Future
+from rosgraph_msgs.msg import Clock
+
+from nni_msgs_adapter import contract
+from nni_msgs_adapter.mcap_io import message_class
+
+#: Wait between subscriber checks before the start, s.
+_START_POLL_S = 0.05
+#: Once the wanted subscribers are matched, wait this long so that their side of DDS
+#: discovery has matched the replay's publishers too (a reader drops data from a writer
+#: it has not matched yet), s.
+_DISCOVERY_SETTLE_S = 0.3
+#: /clock publication rate with --clock, Hz (ros2 bag play --clock's default).
+_CLOCK_RATE_HZ = 40.0
+
+
+class ReplayNode(Node):
+    """Publishes a :class:`replay.Playback` at ``rate`` times its recorded pace.
+
+    ``done`` completes after the last message (never with ``loop``); ``close()`` waits up
+    to two seconds for reliable subscribers to acknowledge what was sent.
+    """
+
+    def __init__(self, playback, *, rate: float = 1.0, loop: bool = False, clock: bool = False,
+                 wait_for_subscribers: int = 0, **kwargs):
+        super().__init__("replay", **kwargs)
+        self._playback = playback
+        self._rate = rate
+        self._loop = loop
+        self._wait_for = wait_for_subscribers
+        self.done = Future()
+        self._publishers_by_topic = {
+            topic: self.create_publisher(message_class(type_name), topic, qos.to_rclpy())
+            for topic, (type_name, qos) in playback.topics.items()
+        }
+        self._clock_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_CLOCK)) if clock else None
+        self._settled_at_ns = None
+        self._pass_start_ns = None  # monotonic time of the current pass's start point
+        self._next = 0              # index into playback.timed
+        self._timer = self.create_timer(_START_POLL_S, self._on_timer)
+        if clock:
+            self.create_timer(1.0 / _CLOCK_RATE_HZ, self._publish_clock)
+
+    def _on_timer(self) -> None:
+        if self._pass_start_ns is None:
+            if not self._subscribers_ready():
+                return
+            self._start_pass()
+        self._publish_due()
+
+    def _subscribers_ready(self) -> bool:
+        if self._wait_for <= 0:
+            return True
+        if any(pub.get_subscription_count() < self._wait_for for pub in self._publishers_by_topic.values()):
+            self._settled_at_ns = None
+            return False
+        now_ns = time.monotonic_ns()
+        if self._settled_at_ns is None:
+            self._settled_at_ns = now_ns + int(_DISCOVERY_SETTLE_S * 1e9)
+        return now_ns >= self._settled_at_ns
+
+    def _start_pass(self) -> None:
+        self._pass_start_ns = time.monotonic_ns()
+        self._next = 0
+        for record in self._playback.prelude:
+            self._publishers_by_topic[record.topic].publish(record.cdr_bytes)
+
+    def _publish_due(self) -> None:
+        timed = self._playback.timed
+        elapsed_ns = (time.monotonic_ns() - self._pass_start_ns) * self._rate
+        while self._next < len(timed) and timed[self._next][0] <= elapsed_ns:
+            record = timed[self._next][1]
+            self._publishers_by_topic[record.topic].publish(record.cdr_bytes)
+            self._next += 1
+        if self._next == len(timed):
+            if not self._loop:
+                self._timer.cancel()
+                self.done.set_result(True)
+                return
+            self._start_pass()
+            elapsed_ns = 0
+        wait_ns = (timed[self._next][0] - elapsed_ns) / self._rate
+        self._timer.timer_period_ns = max(int(wait_ns), 1)
+        self._timer.reset()
+
+    def _publish_clock(self) -> None:
+        if self._pass_start_ns is None or self.done.done():
+            return
+        elapsed_ns = (time.monotonic_ns() - self._pass_start_ns) * self._rate
+        msg = Clock()
+        msg.clock = contract.time_from_ns(self._playback.start_log_time_ns + int(elapsed_ns))
+        self._clock_pub.publish(msg)
