@@ -11,6 +11,7 @@ from the plant's final diagnostics. The orchestrator itself uses no rclpy.
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import os
@@ -22,10 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from nni_battery_controller.cli import PAPER_BATTERY_LIMITS
+from nni_battery_controller.cli import PAPER_BATTERY_LIMITS, plot_runs
 from nni_battery_controller.law import ControllerParams
 from nni_battery_controller.simulate import Trajectory, assess
-from nni_msgs_adapter import contract
 from nni_msgs_adapter.cli_support import (
     CliError,
     OneLineParser,
@@ -34,10 +34,12 @@ from nni_msgs_adapter.cli_support import (
     float_within,
     positive_float,
     run_cli,
+    writable_output,
 )
-from nni_msgs_adapter.mcap_io import deserialize, read_messages
 from nni_msgs_adapter.mcap_logger import COUNTS_PREFIX
+from nni_msgs_adapter.recording import read_generator_run
 from nni_msgs_adapter.rerun_bridge import READY_TEXT
+from nni_msgs_adapter.rerun_view import display_missing
 from nni_plant_sim.model import SmibParams
 
 #: Seconds the logger gets after the plant ends, for the last reliable messages to land.
@@ -132,31 +134,11 @@ class Processes:
 
 
 def trajectory_from_recording(path: Path, plant: SmibParams, ctrl: ControllerParams) -> tuple[Trajectory, dict]:
-    """The sampled trajectory and the plant's last diagnostics from a run's MCAP."""
-    states, signals, diagnostics = [], {}, {}
-    for record in read_messages(path):
-        name = record.topic.rsplit("/", 1)[-1] if record.topic != contract.TOPIC_CLOCK else record.topic
-        if record.topic.endswith("/" + contract.TOPIC_PLANT_STATE):
-            states.append(contract.plant_state_from_message(deserialize(record.type_name, record.cdr_bytes)))
-        elif record.topic.endswith("/" + contract.TOPIC_CONTROLLER_STATE):
-            stamp_ns, values = contract.controller_state_from_message(deserialize(record.type_name, record.cdr_bytes))
-            signals[stamp_ns] = values
-        elif name == contract.TOPIC_DIAGNOSTICS:
-            values = contract.diagnostic_values(deserialize(record.type_name, record.cdr_bytes), "plant")
-            if values is not None:
-                diagnostics = values
-    if not states:
-        raise CliError(f"{path} holds no plant states: the loop did not run")
-    states.sort()
-    t0 = states[0][0]
-    stamps = [s[0] for s in states]
-    x3 = np.array([signals.get(stamp, {}).get("x3", np.nan) for stamp in stamps])
-    w = np.array([signals.get(stamp, {}).get("w", np.nan) for stamp in stamps])
-    saturated = np.array([signals.get(stamp, {}).get("saturated", 0.0) > 0.5 for stamp in stamps])
-    arr = np.array([s[1:] for s in states])
-    traj = Trajectory(plant, ctrl, (np.array(stamps) - t0) * 1e-9, arr[:, 0], arr[:, 1], x3, arr[:, 2], w,
-                      saturated, np.empty(0))
-    return traj, diagnostics
+    """The sampled trajectory and the plant's last diagnostics from a run's MCAP (read as replay reads it)."""
+    run = read_generator_run(path)
+    traj = Trajectory(plant, ctrl, run.t_s, run.delta_rad, run.speed_rad_s, run.signals["x3"], run.battery_power_pu,
+                      run.signals["w"], run.saturated, np.empty(0))
+    return traj, run.diagnostics
 
 
 def rerun_sink(words) -> dict:
@@ -165,15 +147,19 @@ def rerun_sink(words) -> dict:
     if sink not in ("save", "serve", "spawn") or (sink == "save") != (len(words) == 2) or len(words) > 2:
         raise CliError("--rerun takes 'save PATH', 'serve' or 'spawn'")
     if sink == "save":
-        path = Path(words[1])
-        if not path.parent.is_dir() or not os.access(path.parent, os.W_OK):
-            raise CliError(f"--rerun save: folder {path.parent} does not exist or is not writable")
+        try:
+            path = writable_output(words[1])
+        except argparse.ArgumentTypeError as exc:
+            raise CliError(f"--rerun save: {exc}") from None
         return {"sink": "save", "path": str(path)}
+    if sink == "spawn" and display_missing():
+        raise CliError("--rerun spawn needs a display (DISPLAY and WAYLAND_DISPLAY are unset): "
+                       "use --rerun save PATH or --rerun serve")
     return {"sink": sink}
 
 
-def run_one(args, b: float, env: dict, out: Path) -> dict:
-    """One run: start logger, controller, plant; wait for the plant; summarise."""
+def run_one(args, b: float, env: dict, out: Path) -> tuple[dict, Trajectory]:
+    """One run: start logger, controller, plant; wait for the plant; summarise its recording."""
     recording = out / recording_name(b)
     logs = out / "logs" / recording.stem
     logs.mkdir(parents=True, exist_ok=True)
@@ -209,22 +195,23 @@ def run_one(args, b: float, env: dict, out: Path) -> dict:
         "late_samples": int(diag.get("late", 0)),
         "logger_counts": counts,
     })
-    return outcome
+    return outcome, traj
 
 
-def run_all(args, env: dict) -> list[dict]:
+def run_all(args, env: dict) -> tuple[list[dict], list[Trajectory]]:
     """One run per battery limit, each reported on one line as it finishes."""
-    runs = []
+    runs, trajectories = [], []
     for b in args.b:
-        run = run_one(args, b, env, args.out)
+        run, traj = run_one(args, b, env, args.out)
         runs.append(run)
+        trajectories.append(traj)
         lat = run["latency_ms"]
         print(f"  b = {b:<5g} {'stable' if run['stable'] else 'LOST SYNCHRONISM':<17} "
               f"max|d| {run['max_abs_angle_dev_rad']:8.4f} rad  max|P_ST| {run['max_abs_battery_power_pu']:.4f} pu"
               f"  latency p50/p99/max {lat.get('p50', math.nan):.2f}/{lat.get('p99', math.nan):.2f}/"
               f"{lat.get('max', math.nan):.2f} ms  dropped {run['dropped_samples']}  late {run['late_samples']}"
               f"  wall {run['wall_time_s']:.1f} s")
-    return runs
+    return runs, trajectories
 
 
 def wait_for_interrupt() -> None:
@@ -251,6 +238,7 @@ def main(argv=None) -> int:
 
     def body():
         args = parser.parse_args(argv)
+        sink = rerun_sink(args.rerun) if args.rerun else None
         domain = args.domain_id if args.domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
         if not 0 <= domain <= 232:
             raise CliError(f"ROS domain id must be within 0..232, got {domain}")
@@ -261,10 +249,10 @@ def main(argv=None) -> int:
                    PYTHONUNBUFFERED="1")
         print(f"nni-demo: {args.mode}, {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}")
         with Processes(env, args.out) as viewer:
-            if args.rerun:
-                viewer.start("rerun_bridge", "nni_msgs_adapter.rerun_bridge", rerun_sink(args.rerun))
+            if sink:
+                viewer.start("rerun_bridge", "nni_msgs_adapter.rerun_bridge", sink)
                 viewer.wait_for_output("rerun_bridge", READY_TEXT, timeout_s=30.0)
-            runs = run_all(args, env)
+            runs, trajectories = run_all(args, env)
             if args.rerun and args.rerun[0] == "serve":
                 print("serving the Rerun stream (URL in rerun_bridge.log); Ctrl-C to stop")
                 wait_for_interrupt()
@@ -272,7 +260,9 @@ def main(argv=None) -> int:
         with atomic_output(summary) as handle:
             json.dump({"scenarios": runs}, handle, indent=2)
             handle.write("\n")
-        print(f"wrote {summary} and {len(runs)} recording(s) in {args.out}")
+        figure = args.out / "figures.png"
+        plot_runs(trajectories, figure)
+        print(f"wrote {summary}, {figure} and {len(runs)} recording(s) in {args.out}")
         return 0
 
     return run_cli(body, parser.prog)
