@@ -10,32 +10,51 @@ import argparse
 import json
 import math
 import sys
+import time
+
+import numpy as np
 
 from nni_battery_controller.law import ControllerParams
+from nni_battery_controller.roa import RETURNS, STAYS, RoaGrid, report, sweep
 from nni_battery_controller.simulate import assess, simulate_continuous, simulate_sampled
 from nni_msgs_adapter.cli_support import (
+    CliError,
     OneLineParser,
     atomic_output,
     battery_limit,
     finite_float,
+    float_within,
     positive_float,
     run_cli,
     writable_output,
 )
-from nni_plant_sim.model import SmibParams
+from nni_plant_sim.model import SmibParams, critical_angles_rad, invariant_set_boundary
 from nni_plant_sim.scenarios import InitialAngle, MechanicalPowerStep, TransferLimitFault
 
 PAPER_BATTERY_LIMITS = (0.0, 0.2, 0.3, math.inf)
 
 
+_sampling_rate_hz = float_within(10.0, 10_000.0, "Hz or 'continuous'")
+
+
 def controller_rate(text: str):
-    """argparse type: ``continuous`` or a sampling rate in Hz (10 to 10000)."""
-    if text == "continuous":
-        return None
-    rate = positive_float(text)
-    if not 10.0 <= rate <= 10_000.0:
-        raise argparse.ArgumentTypeError(f"controller rate must be 'continuous' or 10..10000 Hz, got {text}")
-    return rate
+    """argparse type: ``continuous`` (None) or a sampling rate in Hz (10 to 10000)."""
+    return None if text == "continuous" else _sampling_rate_hz(text)
+
+
+#: Largest --roa grid per axis: 1000 x 1000 cells hold about 0.2 GB of state during the sweep.
+ROA_GRID_MAX = 1000
+
+
+def roa_grid_size(text: str) -> int:
+    """argparse type: cells per axis of the --roa grid, an integer 10 to ROA_GRID_MAX."""
+    try:
+        size = int(text)
+    except ValueError:
+        size = 0
+    if not 10 <= size <= ROA_GRID_MAX:
+        raise argparse.ArgumentTypeError(f"grid size must be an integer 10..{ROA_GRID_MAX}, got {text!r}")
+    return size
 
 
 def build_parser() -> OneLineParser:
@@ -48,6 +67,13 @@ def build_parser() -> OneLineParser:
                         help="'continuous' (default) or the sampled-data controller rate in Hz")
     parser.add_argument("--json", type=writable_output, help="write the per-scenario summary as JSON here")
     parser.add_argument("--plot", type=writable_output, help="write the paper's two figures as one PNG here")
+    parser.add_argument("--roa", type=writable_output, metavar="PREFIX",
+                        help="instead of the time-domain run: region of attraction of each b on a grid of initial "
+                             "conditions, written to PREFIX.png (basins, Omega, EAC) and PREFIX.json (basin areas)")
+    parser.add_argument("--roa-grid", type=roa_grid_size, default=200, metavar="N",
+                        help=f"--roa: N x N initial conditions (10 to {ROA_GRID_MAX}, default 200)")
+    parser.add_argument("--roa-speed-max", type=positive_float, default=10.0,
+                        help="--roa: initial speed deviations within +-this, rad/s (default 10); angles within +-pi")
     plant = parser.add_argument_group("plant (per unit)")
     plant.add_argument("--H", dest="inertia_h_s", type=finite_float, default=4.0, help="inertia constant H, s")
     plant.add_argument("--D", dest="damping_pu", type=finite_float, default=0.0, help="damping D, pu/(rad/s)")
@@ -132,6 +158,113 @@ def plot_runs(trajectories, path) -> None:
     plt.close(fig)
 
 
+def run_roa(args, plant: SmibParams) -> int:
+    """``--roa``: classify the grid for each b, print basin areas, write PREFIX.json and PREFIX.png."""
+    if args.controller_rate is not None or args.scenario != "initial_angle":
+        raise CliError("--roa sweeps initial conditions of the continuous law after the fault has cleared: "
+                       "it takes neither --controller-rate nor --scenario")
+    grid = RoaGrid(-math.pi, math.pi, -args.roa_speed_max, args.roa_speed_max, args.roa_grid, args.roa_grid)
+    ctrls = [ControllerParams(args.tau_s, args.gain_k, args.gain_l, args.alpha, b) for b in args.b]
+
+    def progress(index, total, basin):
+        print(f"nni-simulate: region of attraction {index + 1}/{total} (b = {basin.b:g}): "
+              f"{basin.count(RETURNS)} of {basin.outcome.size} initial conditions return, "
+              f"{basin.elapsed_s:.1f} s", file=sys.stderr, flush=True)
+
+    last_report = [time.monotonic()]
+
+    def on_check(index, simulated_s, undecided):
+        if time.monotonic() - last_report[0] >= 2.0:  # a line every 2 s of wall time on long sweeps
+            last_report[0] = time.monotonic()
+            print(f"nni-simulate: region of attraction {index + 1}/{len(ctrls)} "
+                  f"(b = {ctrls[index].battery_limit_pu:g}): t = {simulated_s:.2f} s, "
+                  f"{undecided} initial conditions undecided", file=sys.stderr, flush=True)
+
+    basins = sweep(plant, ctrls, grid, progress=progress, on_check=on_check)
+    summary = report(plant, ctrls, grid, basins)
+    summary["plot_shows"] = ("filled: initial conditions that return to equilibrium; dashed outline: those that "
+                             "stay in synchronism without returning (no battery, D = 0)")
+    print(f"Region of attraction, {grid.n_angle} x {grid.n_speed} grid, x3(0) = 0 "
+          f"(delta_bar = {plant.delta_bar_rad:.4f} rad, "
+          f"Omega: {summary['invariant_set']['area_rad2_per_s']:.3f} rad^2/s)")
+    print(f"{'b (pu)':>7} {'returns (rad^2/s)':>18} {'fraction':>9} {'in sync (rad^2/s)':>18} {'undecided':>10}")
+    for basin, item in zip(basins, summary["basins"]):
+        print(f"{basin.b:>7g} {item['returns_area_rad2_per_s']:>18.3f} {item['returns_fraction']:>9.4f} "
+              f"{item['synchronism_area_rad2_per_s']:>18.3f} {item['cells']['undecided']:>10}")
+    png = plot_roa(plant, grid, basins, (args.delta0 - plant.delta_bar_rad, args.speed0))
+    json_path, png_path = (args.roa.with_name(args.roa.name + suffix) for suffix in (".json", ".png"))
+    with atomic_output(json_path) as handle:
+        json.dump(summary, handle, indent=2)
+        handle.write("\n")
+    with atomic_output(png_path, "wb") as handle:
+        handle.write(png)
+    print(f"wrote {json_path} and {png_path}")
+    return 0
+
+
+def plot_roa(plant: SmibParams, grid: RoaGrid, basins, marked_state) -> bytes:
+    """PNG of the basins of all b overlaid in the (d0, d0') plane, with Omega and the EAC's critical angles.
+
+    ``marked_state`` (angle deviation rad, speed rad/s) is starred: the run's
+    --delta0 / --speed0, by default the paper's case.
+    """
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import to_rgb
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    # Cell centres, plus the grid's edges (with the edge cells' outcome) so that fills reach the axes.
+    angles = np.concatenate(([grid.angle_min_rad], grid.angle_centres_rad, [grid.angle_max_rad]))
+    speeds = np.concatenate(([grid.speed_min_rad_s], grid.speed_centres_rad_s, [grid.speed_max_rad_s]))
+    fig, ax = plt.subplots(figsize=(9, 8.5), layout="constrained")
+    handles = []
+    # Largest basin first, opaque, so that each smaller one drawn over it shows as
+    # its own band (the basins nest); each keeps its outline in the --plot colour.
+    order = sorted(range(len(basins)), key=lambda i: -basins[i].count(RETURNS))
+    for index in order:
+        basin, color = basins[index], f"C{index}"
+        fill = tuple(0.45 * c + 0.55 for c in to_rgb(color))  # the colour, lightened
+        name = "no battery" if basin.b == 0 else ("unlimited" if math.isinf(basin.b) else "")
+        label = f"b = {basin.b:g}" + (f" ({name})" if name else "")
+        outcome = np.pad(basin.outcome, 1, mode="edge")
+        returns = (outcome == RETURNS).astype(float)
+        if returns.any():
+            ax.contourf(angles, speeds, returns, levels=[0.5, 1.5], colors=[fill])
+            ax.contour(angles, speeds, returns, levels=[0.5], colors=[color], linewidths=1.5)
+            handles.append(Patch(facecolor=fill, edgecolor=color, label=f"{label}: returns to equilibrium"))
+        stays = (outcome == STAYS).astype(float)
+        if stays.any():
+            ax.contour(angles, speeds, stays, levels=[0.5], colors=[color], linewidths=2.0, linestyles="--")
+            handles.append(Line2D([], [], color=color, ls="--", lw=2.0,
+                                  label=f"{label}: stays in synchronism, never returns (D = 0: oscillates)"))
+    omega = invariant_set_boundary(plant)
+    handles += ax.plot(omega[:, 0], omega[:, 1], color="black", lw=1.5,
+                       label="invariant set Omega: W <= c, |d| <= pi - 2 delta_bar")
+    low, high = (angle - plant.delta_bar_rad for angle in critical_angles_rad(plant))
+    handles += ax.plot([low, high], [0.0, 0.0], color="black", lw=3.0, marker="|", markersize=14,
+                       label=f"EAC, released at rest, no battery: in synchronism for {low:.3f} < d0 < {high:.3f} rad")
+    handles += ax.plot([marked_state[0]], [marked_state[1]], "k*", markersize=11,
+                       label=f"delta(0) = {marked_state[0] + plant.delta_bar_rad:g} rad, "
+                             f"d'(0) = {marked_state[1]:g} rad/s (--delta0, --speed0; default: the paper's case)")
+    ax.set_xlim(grid.angle_min_rad, grid.angle_max_rad)
+    ax.set_ylim(grid.speed_min_rad_s, grid.speed_max_rad_s)
+    ax.set_xlabel("initial angle deviation d0 = delta(0) - delta_bar (rad)")
+    ax.set_ylabel("initial speed deviation d0' = omega(0) - omega0 (rad/s)")
+    ax.set_title("Region of attraction of the battery-controlled generator (x3(0) = 0)\n"
+                 "outside a basin the angle deviation passes pi (a pole slip)")
+    fig.legend(handles=handles, loc="outside lower center", ncol=2, fontsize=8)
+    ax.grid(True, alpha=0.3)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=120)
+    plt.close(fig)
+    return buffer.getvalue()
+
+
 def main(argv=None) -> int:
     """Entry point of ``nni-simulate``."""
     parser = build_parser()
@@ -139,6 +272,8 @@ def main(argv=None) -> int:
     def body():
         args = parser.parse_args(argv)
         plant = SmibParams(args.inertia_h_s, args.damping_pu, args.p_mech_pu, args.p_max_pu, args.f0_hz)
+        if args.roa:
+            return run_roa(args, plant)
         scenario = scenario_from_args(args)
         trajectories = []
         for b in args.b:
