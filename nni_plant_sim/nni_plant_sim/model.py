@@ -138,6 +138,8 @@ def swing_rhs(x, battery_power_pu, plant: SmibParams, p_mech_pu: float, p_max_pu
     accel = (
         p_mech_pu + battery_power_pu - p_max_pu * np.sin(delta) - plant.damping_pu * speed
     ) / plant.inertia_m
+    if np.ndim(accel) == 0:  # one state: skip broadcasting (the plant node's path, 40 calls a sample)
+        return np.array((speed, accel), dtype=float)
     return np.stack(np.broadcast_arrays(speed, accel)).astype(float, copy=False)
 
 
