@@ -1,0 +1,1 @@
+"""Benchmarks of the loop and the region-of-attraction sweep: ``python -m bench``."""
