@@ -247,10 +247,10 @@ def plot_roa(plant: SmibParams, grid: RoaGrid, basins, marked_state) -> bytes:
                        label="invariant set Omega: W <= c, |d| <= pi - 2 delta_bar")
     low, high = (angle - plant.delta_bar_rad for angle in critical_angles_rad(plant))
     handles += ax.plot([low, high], [0.0, 0.0], color="black", lw=3.0, marker="|", markersize=14,
-                       label=f"EAC, released at rest, no battery: in synchronism for {low:.3f} < d0 < {high:.3f} rad")
+                       label=f"EAC (at rest, no battery): in synchronism for {low:.3f} < d0 < {high:.3f} rad")
     handles += ax.plot([marked_state[0]], [marked_state[1]], "k*", markersize=11,
                        label=f"delta(0) = {marked_state[0] + plant.delta_bar_rad:g} rad, "
-                             f"d'(0) = {marked_state[1]:g} rad/s (--delta0, --speed0; default: the paper's case)")
+                             f"d'(0) = {marked_state[1]:g} rad/s (--delta0, --speed0)")
     ax.set_xlim(grid.angle_min_rad, grid.angle_max_rad)
     ax.set_ylim(grid.speed_min_rad_s, grid.speed_max_rad_s)
     ax.set_xlabel("initial angle deviation d0 = delta(0) - delta_bar (rad)")
