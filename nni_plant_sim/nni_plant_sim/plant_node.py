@@ -270,12 +270,16 @@ class PlantNode(Node):
         if self._stats.command_age_s(now_ns) > self._values["command_timeout_s"] and self._battery_power_pu != 0:
             self._battery_power_pu = 0.0
             self._stats.command_timeouts += 1
+        duration = self._values["duration_s"]
+        if duration > 0 and self._sample >= round(duration / self._period_s):
+            # The run's end, as in lockstep: its state, but no measurement nobody could answer.
+            self._publish_state(now_ns)
+            self._finish()
+            return
         self._publish_measurement(now_ns)
         self._publish_state(now_ns)
         self._stats.sent(now_ns, now_ns)
         self._sample += 1
-        if self._finished():
-            self._finish()
 
     # --- lockstep ------------------------------------------------------------------------
 
