@@ -114,7 +114,7 @@ class Probe:
         self._publishers: dict[str, object] = {}
         self._lock = threading.Lock()
         for topic in topics:
-            msg_class, name, qos = contract.endpoint(topic)
+            msg_class, name, qos = contract.recorder_endpoint(topic)
             self.node.create_subscription(msg_class, name, self._recorder(topic), qos)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import threading
 
 import numpy as np
 import pytest
@@ -70,6 +71,56 @@ def test_lockstep_equals_offline_sampled_simulation(tmp_path):
     np.testing.assert_allclose(x3, offline.x3[: x3.size], rtol=0, atol=1e-12)
     assert x3.size == offline.t_s.size - 1, "the controller answered every sample but the final state"
     assert np.max(np.abs(states[:, 3])) <= b
+
+
+class HeldProbe(Probe):
+    """A probe whose callbacks block until ``release()``: a recorder that falls behind by a whole run."""
+
+    def __init__(self, domain_id: int, topics):
+        self._gate = threading.Event()
+        super().__init__(domain_id, topics)
+
+    def _recorder(self, topic):
+        record = super()._recorder(topic)
+
+        def held(msg):
+            self._gate.wait(timeout=120.0)
+            record(msg)
+
+        return held
+
+    def release(self) -> None:
+        self._gate.set()
+
+
+def test_a_recorder_that_falls_behind_by_a_whole_run_loses_nothing(tmp_path):
+    """The lockstep plant never waits for recorders, so their reader history must hold the backlog.
+
+    The probe subscribes with the recorder QoS (contract.recorder_endpoint, as the
+    MCAP logger and the Rerun bridge do) and takes nothing until the plant has
+    exited: all 501 states and 500 measurements are then still there, in order.
+    With the publishers' depth of 100 it would get only the last 100 of each.
+    """
+    rate, duration = 50.0, 10.0
+    domain = fresh_domain_id()
+    probe = HeldProbe(domain, (contract.TOPIC_PMU, contract.TOPIC_PLANT_STATE))
+    try:
+        with node_processes(tmp_path, domain) as start:
+            start("controller", CONTROLLER, {"battery_limit_pu": 0.3, "sample_rate_hz": rate})
+            plant = start("plant", PLANT, {"mode": "lockstep", "duration_s": duration, "pmu_rate_hz": rate,
+                                           "wait_for_subscribers": 2})
+            assert plant.wait(timeout=60.0) == 0, plant.output()
+            assert probe.take(contract.TOPIC_PLANT_STATE) == [], "the probe took nothing during the run"
+            probe.release()
+            n_samples = int(duration * rate)
+            states = probe.wait_for(contract.TOPIC_PLANT_STATE, n_samples + 1, 10.0)
+            measurements = probe.wait_for(contract.TOPIC_PMU, n_samples, 10.0)
+    finally:
+        probe.release()
+        probe.close()
+    period_ns = round(1e9 / rate)
+    assert [contract.ns_from_time(m.header.stamp) for m in states] == [k * period_ns for k in range(n_samples + 1)]
+    assert [contract.ns_from_time(m.header.stamp) for m in measurements] == [k * period_ns for k in range(n_samples)]
 
 
 @pytest.mark.parametrize("b, duration_s, expect_stable", [(0.3, 6.0, True), (0.0, 3.0, False)])

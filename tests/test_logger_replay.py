@@ -64,7 +64,7 @@ class RawProbe(Probe):
         super().__init__(domain_id, ())
         for topic in topics:
             self.messages[topic] = []
-            msg_class, name, qos = contract.endpoint(topic)
+            msg_class, name, qos = contract.recorder_endpoint(topic)
             self.node.create_subscription(msg_class, name, self._recorder(topic), qos, raw=True)
 
     def _recorder(self, topic):

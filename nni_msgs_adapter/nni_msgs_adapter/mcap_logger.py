@@ -4,12 +4,14 @@
 
 Once a second (and at start) it looks at the ROS graph for topics whose last
 name component(s) match the contract (``pmu``, ``battery/command``, ...) under
-any namespace, plus ``/clock``, and subscribes to each in raw (serialized) form
-with the contract's QoS, so nothing is deserialised on the way to disk. Each
-message is written with log_time = receive time and publish_time = its header
-stamp (read from the first eight CDR bytes: every contract type starts with a
-builtin_interfaces/Time). The channel's ``offered_qos_profiles`` are the QoS of
-the publishers seen on the graph, so ``ros2 bag play`` offers the same QoS.
+any namespace, plus ``/clock``, and subscribes to each in raw (serialized) form,
+so nothing is deserialised on the way to disk, with the contract's QoS and a
+history of ``contract.RECORDER_DEPTH`` (a logger that falls behind catches up
+instead of losing samples). Each message is written with log_time = receive
+time and publish_time = its header stamp (read from the first eight CDR bytes:
+every contract type starts with a builtin_interfaces/Time). The channel's
+``offered_qos_profiles`` are the QoS of the publishers seen on the graph, so
+``ros2 bag play`` offers the same QoS.
 
 The writer closes a chunk and flushes the file every ``flush_period_s`` (default
 0.5 s): after SIGKILL the file is readable up to the last flush, so at most the
@@ -91,7 +93,7 @@ class McapLogger(Node):
             name = contract_topic_of(topic)
             if name is None:
                 continue
-            type_name, msg_class, qos = contract.TOPICS[name]
+            type_name = contract.TOPICS[name][0]
             if type_name not in types:
                 continue
             offered = [OfferedQos.from_rclpy(info.qos_profile) for info in self.get_publishers_info_by_topic(topic)]
@@ -103,6 +105,7 @@ class McapLogger(Node):
                 self.get_logger().error(f"not recording {topic}: {exc}")
                 self._recorded[topic] = None
                 continue
+            msg_class, _, qos = contract.recorder_endpoint(name)
             self._recorded[topic] = self.create_subscription(
                 msg_class, topic, self._writer_for(channel), qos, raw=True)
 

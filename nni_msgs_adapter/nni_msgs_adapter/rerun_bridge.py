@@ -63,7 +63,7 @@ class RerunBridge(Node):
         for topic, callback in ((contract.TOPIC_PLANT_STATE, self._on_plant),
                                 (contract.TOPIC_CONTROLLER_STATE, self._on_controller),
                                 (contract.TOPIC_INVARIANT_SET, self._on_invariant_set)):
-            msg_type, name, qos = contract.endpoint(topic)
+            msg_type, name, qos = contract.recorder_endpoint(topic)
             self.create_subscription(msg_type, name, callback, qos)
         self.get_logger().info(f"{READY_TEXT} ({values['sink']})")
 
