@@ -6,7 +6,7 @@ scenario to the end, stops the others with SIGINT (SIGKILL after a grace
 period), and reads the recording back to write ``OUT/summary.json``: the keys of
 ``nni-simulate --json`` per run plus loop latency (p50, p99, max in ms, from
 measurement to command arrival at the plant) and dropped / late sample counts
-from the plant's final diagnostics. The orchestrator itself uses no rclpy.
+from the plant's final diagnostics. The orchestrator creates no ROS node of its own.
 """
 
 from __future__ import annotations
