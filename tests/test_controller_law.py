@@ -23,7 +23,6 @@ from nni_battery_controller.law import (
     closed_loop_lyapunov,
     is_saturated,
     q1_matrix,
-    sampled_step,
     saturate,
     saturation_input,
     x3_rate,
@@ -273,7 +272,6 @@ def test_sampled_x3_update_is_the_exact_solution_of_the_held_mode(plant, gains, 
     assert power == (max(-b, min(b, w_out)) if saturated else w_out)
     # expm (Pade) and exp agree to ~1e-15 relative; states are O(1).
     assert_allclose(controller.x3, x3_next, rtol=1e-12, atol=1e-14)
-    assert_allclose(sampled_step(x3, d, ctrl, plant, period_s)[3], x3_next, rtol=1e-12, atol=1e-14)
 
 
 def test_sampled_law_reaches_the_unsaturated_steady_state(paper_plant, paper_controller):

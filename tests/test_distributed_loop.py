@@ -52,9 +52,10 @@ def states_array(messages) -> np.ndarray:
 def test_lockstep_equals_offline_sampled_simulation(tmp_path):
     """Lockstep over DDS reproduces simulate_sampled at the same rate.
 
-    Same advance() call, same sampled_step(), float64 carried exactly by CDR: the
-    only possible difference is the order of floating-point operations, so the
-    tolerance is a few ulps of the state's magnitude (1e-12 absolute).
+    Same advance() call, same SampledController.step(), float64 carried exactly
+    by CDR: the only possible difference is the order of floating-point
+    operations, so the tolerance is a few ulps of the state's magnitude (1e-12
+    absolute).
     """
     b, duration, rate = 0.3, 10.0, 50.0
     recorded, _ = run_loop(tmp_path, "lockstep", b, duration, rate)

@@ -131,9 +131,6 @@ class ControllerNode(Node):
             return
         gap_s = None if self._last_stamp_ns is None else (stamp_ns - self._last_stamp_ns) * 1e-9
         self._last_stamp_ns = stamp_ns
-        self._last_arrival_ns = self.get_clock().now().nanoseconds
-        self._stale_timer.reset()
-        self._stale = False
         if gap_s is not None and gap_s > self._config.stale_after_s:
             # Data went missing in its own time base: the state no longer describes
             # the plant, so restart from steady state rather than jump.
@@ -143,6 +140,10 @@ class ControllerNode(Node):
         x3 = self._law.x3
         power, w, saturated = self._law.step(angle_dev)
         self._command_pub.publish(contract.command_message(stamp_ns, power))
+        # Bookkeeping after the answer is out: none of it changes the command.
+        self._last_arrival_ns = self.get_clock().now().nanoseconds
+        self._stale_timer.reset()
+        self._stale = False
         self.counts["samples"] += 1
         w_hat = float(closed_loop_lyapunov(angle_dev, speed, x3, self._config.plant, self._config.ctrl))
         self._state_pub.publish(contract.controller_state_message(

@@ -24,8 +24,8 @@ from scipy.optimize import brentq
 
 from nni_battery_controller.law import (
     ControllerParams,
+    SampledController,
     closed_loop_lyapunov,
-    sampled_step,
     saturation_input,
     x3_rate,
 )
@@ -294,16 +294,16 @@ def simulate_sampled(
     n = int(round(duration_s * rate_hz))
     t = np.arange(n + 1) * period
     x = scenario.initial_state(plant)
-    x3 = 0.0
+    law = SampledController(plant, ctrl, period)
     states = np.empty((n + 1, 3))
     outputs = np.empty((n + 1, 3))
     for k in range(n + 1):
-        power, w, saturated, next_x3 = sampled_step(x3, x[0] - plant.delta_bar_rad, ctrl, plant, period)
+        x3 = law.x3
+        power, w, saturated = law.step(float(x[0]) - plant.delta_bar_rad)
         states[k] = (x[0], x[1], x3)
         outputs[k] = (power, w, saturated)
         if k < n:
             x = advance(t[k], t[k + 1], x, power, plant, scenario, max_step_s)
-            x3 = float(next_x3)
     return Trajectory(
         plant, ctrl, t, states[:, 0], states[:, 1], states[:, 2],
         outputs[:, 0], outputs[:, 1], outputs[:, 2].astype(bool), np.empty(0),
