@@ -332,6 +332,25 @@ def test_scenarios_switch_network_at_their_breakpoints(paper_plant):
     assert_allclose(InitialAngle(0.2, 0.1).initial_state(paper_plant), [0.2, 0.1], rtol=0, atol=0)
 
 
+def test_one_trajectory_on_floats_equals_the_same_trajectory_in_a_batch(paper_plant):
+    """advance() runs one state on Python floats (math.sin) and a batch on arrays (np.sin): same RK4.
+
+    The two sines may differ in the last bit, so after 2 s of a slipping rotor
+    (b = 0, delta0 = 0.4 rad beyond the EAC limit) the states agree to a few
+    hundred ulps of their magnitude, not exactly.
+    """
+    fault = TransferLimitFault(0.2, 0.15)
+    starts = np.array([[0.2, 0.9273, 1.3, 2.5], [0.0, 0.5, -1.0, 3.0]])
+    batch = advance(0.0, 2.0, starts, 0.0, paper_plant, fault)
+    assert batch.shape == starts.shape
+    for column in range(starts.shape[1]):
+        one = advance(0.0, 2.0, starts[:, column], 0.0, paper_plant, fault)
+        assert one.shape == (2,)
+        assert_allclose(one, batch[:, column], rtol=1e-13, atol=1e-13)
+        assert_allclose(rk4_step(0.0, starts[:, column], 1e-3, 0.1, paper_plant, fault),
+                        rk4_step(0.0, starts, 1e-3, 0.1, paper_plant, fault)[:, column], rtol=1e-15, atol=1e-15)
+
+
 def test_advance_through_a_fault_matches_an_adaptive_reference(paper_plant):
     """A bolted fault cleared at 0.1 s, integrated to 0.5 s, across the breakpoint."""
     fault = TransferLimitFault(0.0, 0.1)

@@ -114,32 +114,49 @@ def restoring_energy(angle_dev_rad, plant: SmibParams):
     )
 
 
-def swing_rhs(x, battery_power_pu, plant: SmibParams, p_mech_pu: float, p_max_pu: float):
-    """Swing equation with a battery at the generator bus.
+def swing_acceleration(delta_rad, speed_rad_s, battery_power_pu, plant: SmibParams, p_mech_pu: float,
+                       p_max_pu: float):
+    """Rotor acceleration delta'' in rad/s^2: the swing equation with a battery at the generator bus.
+
+    ``M delta'' = P_M + P_ST - P_max sin(delta) - D delta'``. Python floats in,
+    float out (``math.sin``: the plant node's path, 40 calls a sample, where
+    numpy's per-call overhead on scalars would dominate); numpy arrays in,
+    array out (vectorised over trajectories).
 
     Parameters
     ----------
-    x : array_like, shape (2,) or (2, N)
-        ``[delta (rad), speed deviation delta' = omega - omega0 (rad/s)]``.
-    battery_power_pu : float or array_like, shape (N,)
+    delta_rad, speed_rad_s : float or numpy.ndarray
+        Rotor angle delta (rad) and speed deviation delta' = omega - omega0 (rad/s).
+    battery_power_pu : float or numpy.ndarray
         Battery power change P_ST injected at the generator bus, pu.
     plant : SmibParams
         Inertia and damping.
     p_mech_pu, p_max_pu : float
         Mechanical power and maximum transfer in force now (a fault scenario
         changes them over time; see :mod:`nni_plant_sim.scenarios`).
+    """
+    sin = math.sin if isinstance(delta_rad, float) else np.sin
+    return (p_mech_pu + battery_power_pu - p_max_pu * sin(delta_rad) - plant.damping_pu * speed_rad_s) \
+        / plant.inertia_m
+
+
+def swing_rhs(x, battery_power_pu, plant: SmibParams, p_mech_pu: float, p_max_pu: float):
+    """The swing equation as a first-order system, ``x' = f(x)``, for ODE solvers.
+
+    Parameters
+    ----------
+    x : array_like, shape (2,) or (2, N)
+        ``[delta (rad), speed deviation delta' = omega - omega0 (rad/s)]``.
+    battery_power_pu, plant, p_mech_pu, p_max_pu
+        As :func:`swing_acceleration`.
 
     Returns
     -------
     numpy.ndarray, same shape as ``x``
         ``[delta' (rad/s), delta'' (rad/s^2)]``.
     """
-    delta, speed = x[0], x[1]
-    accel = (
-        p_mech_pu + battery_power_pu - p_max_pu * np.sin(delta) - plant.damping_pu * speed
-    ) / plant.inertia_m
-    if np.ndim(accel) == 0:  # one state: skip broadcasting (the plant node's path, 40 calls a sample)
-        return np.array((speed, accel), dtype=float)
+    delta, speed = np.asarray(x[0], dtype=float), np.asarray(x[1], dtype=float)
+    accel = swing_acceleration(delta, speed, battery_power_pu, plant, p_mech_pu, p_max_pu)
     return np.stack(np.broadcast_arrays(speed, accel)).astype(float, copy=False)
 
 
