@@ -8,6 +8,7 @@ SIGKILL on real node processes.
 from __future__ import annotations
 
 import math
+import signal
 import time
 
 import numpy as np
@@ -252,6 +253,45 @@ def test_killed_controller_times_out_to_zero_and_a_restart_recovers(tmp_path):
             assert wait_until(lambda: int(plant_diagnostics(probe).get("commands", 0)) > before + 25, 5.0)
         finally:
             probe.close()
+
+
+def test_a_stalled_realtime_plant_stays_on_its_reporting_grid_and_counts_what_it_skipped(tmp_path):
+    """Realtime measurements are stamped with exact reporting instants t0 + k T, T the timer's period in ns.
+
+    60 frames/s, a period that is not a whole number of ns (rclpy's timer runs
+    at int(1e9 / 60) ns). The plant is stopped (SIGSTOP) for 0.3 s, about 18
+    periods: afterwards it reports the latest instant, still on the grid, and
+    its diagnostics count the instants it skipped, as many as the gaps in the
+    stamps show.
+    """
+    rate = 60.0
+    period_ns = int((1.0 / rate) * 1e9)
+    domain = fresh_domain_id()
+    with node_processes(tmp_path, domain) as start:
+        probe = Probe(domain, (contract.TOPIC_PMU, contract.TOPIC_PLANT_STATE, contract.TOPIC_DIAGNOSTICS))
+        try:
+            start("controller", CONTROLLER, {"battery_limit_pu": 0.3, "sample_rate_hz": rate})
+            plant = start("plant", PLANT, {"mode": "realtime", "pmu_rate_hz": rate, "wait_for_subscribers": 2})
+            assert wait_until(lambda: len(probe.take(contract.TOPIC_PMU)) > 30, 30.0)
+            plant.proc.send_signal(signal.SIGSTOP)
+            time.sleep(0.3)
+            plant.proc.send_signal(signal.SIGCONT)
+            resumed_at = len(probe.take(contract.TOPIC_PMU))
+            assert wait_until(lambda: len(probe.take(contract.TOPIC_PMU)) > resumed_at + 60, 30.0)
+            assert plant.interrupt() == 0
+            time.sleep(0.3)
+            skipped = int(plant_diagnostics(probe)["skipped_reports"])
+        finally:
+            probe.close()
+    stamps = np.array([contract.ns_from_time(m.header.stamp) for m in probe.take(contract.TOPIC_PMU)])
+    gaps = np.diff(stamps)
+    assert np.all(gaps > 0)
+    assert np.all(gaps % period_ns == 0), "every measurement on the grid t0 + k T"
+    periods = gaps // period_ns
+    assert periods.max() >= 10, "the stall skipped instants"
+    assert skipped == int(np.sum(periods - 1)), "diagnostics count every skipped instant"
+    state_stamps = {contract.ns_from_time(m.header.stamp) for m in probe.take(contract.TOPIC_PLANT_STATE)}
+    assert set(stamps.tolist()) <= state_stamps, "each measurement's instant has its true state"
 
 
 def test_killed_plant_leaves_the_controller_idle_and_alive(tmp_path):

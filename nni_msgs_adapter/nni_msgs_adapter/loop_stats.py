@@ -74,14 +74,16 @@ class TimingDistribution:
 class LoopStats:
     """Per-sample timing of the measurement -> command loop, seen from the plant.
 
-    Latency of a sample: wall time from publishing its measurement (realtime:
-    its stamp, the measurement instant) to the arrival of the command that
-    answers it. A deadline miss: a reporting instant reached with the previous
-    sample unanswered (lockstep: a timeout).
+    Latency of a sample: wall time from its measurement (realtime: its stamp,
+    the reporting instant the state was measured at; lockstep: its
+    publication) to the arrival of the command that answers it. Jitter: how
+    late the reporting timer fired after the instant. A deadline miss: a
+    reporting instant reached with the previous sample unanswered (lockstep: a
+    timeout). A skipped report: a reporting instant that got no measurement
+    because the timer fell more than a period behind.
     """
 
-    def __init__(self, period_s: float):
-        self.period_s = period_s
+    def __init__(self):
         # Ranges: loop latency 0..100 ms, timer jitter -10..90 ms (a timer fires late, rarely early).
         self.latency = TimingDistribution(0, 100_000_000)
         self.jitter = TimingDistribution(-10_000_000, 90_000_000)
@@ -95,6 +97,7 @@ class LoopStats:
         self.deadline_misses = 0
         self.command_timeouts = 0
         self.duplicates = 0
+        self.skipped_reports = 0
 
     def sent(self, stamp_ns: int, wall_ns: int) -> None:
         """A measurement with ``stamp_ns`` left the plant at ``wall_ns``."""
@@ -131,7 +134,7 @@ class LoopStats:
         out = {
             "commands": self.latency.count, "late": self.late, "rejected": self.rejected,
             "duplicates": self.duplicates, "deadline_misses": self.deadline_misses,
-            "command_timeouts": self.command_timeouts,
+            "command_timeouts": self.command_timeouts, "skipped_reports": self.skipped_reports,
         }
         for name, distribution in (("latency", self.latency), ("jitter", self.jitter)):
             if distribution.count:

@@ -3,12 +3,13 @@
 Thin ROS wrapper around :mod:`nni_plant_sim.model`, :mod:`.scenarios` and
 :mod:`.integrators` (the physics the offline simulation uses). Two time modes:
 
-* ``realtime``: a wall-clock timer at the PMU rate. The physics is advanced to
-  the present instant whenever something happens (a reporting instant, a
-  command arriving), so each battery command acts from the moment it arrives;
-  after a command it is integrated on to the next reporting instant while the
-  loop is idle (and redone from the arrival if another command comes first),
-  so that the tick only publishes.
+* ``realtime``: a wall-clock timer at the PMU rate. Measurements are taken at
+  the exact reporting instants t0 + k T and stamped with them (as a PMU does,
+  IEEE C37.118), and published when the timer fires; the timer's lateness is
+  part of the loop's latency. Each battery command acts from the moment it
+  arrives: the physics is advanced to the arrival, then, while the loop is
+  idle, on to the next reporting instant (redone from a later arrival if
+  another command comes first), so that the tick only publishes.
   A command older than ``command_timeout_s`` is dropped to zero power.
 * ``lockstep``: simulated time, published on /clock. The plant publishes the
   measurement of sample k and advances one reporting period only when the
@@ -127,7 +128,7 @@ class PlantNode(Node):
         self._subscribers_seen_ns = None
         self._awaiting_stamp_ns = None  # lockstep: stamp of the sample whose command we wait for
         self._ahead = None              # realtime: (t_s, x) before integrating ahead to the next instant
-        self._stats = LoopStats(self._period_s)
+        self._stats = LoopStats()
 
         self._pmu_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_PMU))
         self._state_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_PLANT_STATE))
@@ -191,6 +192,13 @@ class PlantNode(Node):
             self._publish_sample()
         else:
             self._tick_timer = self.create_timer(self._period_s, self._on_tick)
+            # The reporting grid is the timer's own, its period in whole ns and its
+            # phase, so that a tick never comes before its instant and the two never
+            # drift apart (a timer at 60 frames/s runs at 16,666,666 ns, not 1/60 s).
+            now_ns = self._now_ns()
+            self._period_ns = self._tick_timer.timer_period_ns
+            self._period_s = self._period_ns * 1e-9
+            self._t0_ns = now_ns + self._tick_timer.time_until_next_call() - self._period_ns
             self._on_tick()
 
     def _start_fault(self) -> None:
@@ -204,7 +212,10 @@ class PlantNode(Node):
         elif self._scenario is not PRE_FAULT:
             response.success, response.message = False, "the fault has already started"
         else:
-            self._advance_to_now()
+            if not self._lockstep:
+                now_ns = self._now_ns()
+                self._report_due(now_ns)
+                self._advance_to((now_ns - self._t0_ns) * 1e-9)
             self._start_fault()
             response.success, response.message = True, f"fault started at t = {self._t_s:.6f} s"
         return response
@@ -221,10 +232,6 @@ class PlantNode(Node):
             self._x = advance(self._t_s, t_s, self._x, self._battery_power_pu, self._plant, self._scenario,
                               self._values["integration_step_s"])
             self._t_s = t_s
-
-    def _advance_to_now(self) -> None:
-        if not self._lockstep:
-            self._advance_to((self._now_ns() - self._t0_ns) * 1e-9)
 
     def _measure(self) -> tuple[float, float]:
         """PMU reading of the current state: noise, then quantisation."""
@@ -263,22 +270,43 @@ class PlantNode(Node):
     # --- realtime ------------------------------------------------------------------------
 
     def _on_tick(self) -> None:
-        now_ns = self._now_ns()
-        self._stats.tick(now_ns, self._t0_ns + round(self._sample * self._period_s * 1e9))
-        self._advance_to((now_ns - self._t0_ns) * 1e-9)
+        self._report_due(self._now_ns())
+
+    def _report_due(self, now_ns: int) -> None:
+        """Report the latest reporting instant t0 + k T at or before ``now_ns``, unless it is reported already.
+
+        As a PMU does (IEEE C37.118), the measurement is of the state at that
+        instant and stamped with it; the state there was integrated while the
+        loop was idle (see _on_command), so nothing is computed between the
+        instant and the publish, and the timer's lateness counts as latency. A
+        timer that fell more than a period behind skips instants (counted)
+        instead of drifting. A command or a service call that arrives after an
+        instant whose tick is late calls this first, so that the instant is
+        reported with the power in force at it.
+        """
+        instant = (now_ns - self._t0_ns) // self._period_ns
+        if instant < self._sample or self.done.done():
+            return
+        self._stats.skipped_reports += instant - self._sample
+        self._sample = instant
+        self._advance_to(instant * self._period_s)
         self._ahead = None  # the measurement fixes the past
+        stamp_ns = self._t0_ns + instant * self._period_ns
+        duration = self._values["duration_s"]
+        # The run's end, as in lockstep: its state, but no measurement nobody could answer.
+        final = duration > 0 and instant >= round(duration / self._period_s)
+        if not final:
+            # The bookkeeping below cannot race the answer, which waits for this callback to return.
+            self._publish_measurement(stamp_ns)
+        self._stats.tick(now_ns, stamp_ns)
         if self._stats.command_age_s(now_ns) > self._values["command_timeout_s"] and self._battery_power_pu != 0:
             self._battery_power_pu = 0.0
             self._stats.command_timeouts += 1
-        duration = self._values["duration_s"]
-        if duration > 0 and self._sample >= round(duration / self._period_s):
-            # The run's end, as in lockstep: its state, but no measurement nobody could answer.
-            self._publish_state(now_ns)
+        self._publish_state(stamp_ns)
+        if final:
             self._finish()
             return
-        self._publish_measurement(now_ns)
-        self._publish_state(now_ns)
-        self._stats.sent(now_ns, now_ns)
+        self._stats.sent(stamp_ns, stamp_ns)
         self._sample += 1
 
     # --- lockstep ------------------------------------------------------------------------
@@ -347,6 +375,7 @@ class PlantNode(Node):
             return
         if not self._started:
             return
+        self._report_due(arrival_ns)  # an instant passed unreported (its tick is late): report it first
         if not self._stats.answered(stamp_ns, arrival_ns):
             return  # duplicate or older than the command in force
         self._advance_to((arrival_ns - self._t0_ns) * 1e-9)
@@ -362,7 +391,9 @@ class PlantNode(Node):
 
     def _publish_diagnostics(self) -> None:
         level, message = (b"\x00", "running") if self._started else (b"\x01", "waiting for subscribers")
-        values = {"mode": self._values["mode"], "sim_time_s": self._t_s, "samples": self._sample,
+        run_wall_s = (self._now_ns() - self._t0_ns) * 1e-9 if self._started else 0.0
+        values = {"mode": self._values["mode"], "sim_time_s": self._t_s, "run_wall_s": run_wall_s,
+                  "samples": self._sample,
                   "battery_power_pu": self._battery_power_pu, **self._stats.summary()}
         self._diag_pub.publish(contract.diagnostics_message(
             self._now_ns(), "plant", self.get_fully_qualified_name(), level, message, values))
