@@ -4,7 +4,9 @@ Each table sets a measurement beside a baseline taken in the same run:
 
 1. closed-loop latency (plant -> controller -> plant, realtime mode) at 50, 100,
    500 and 1000 measurements/s beside a bare rclpy ping-pong of the same message
-   type and QoS in two processes;
+   type and QoS in two processes, in alternating rounds;
+   1b. the controller's share of it: the same timed ping answered in
+   alternate rounds by the bare echo and by the controller node itself;
 2. lockstep throughput (simulated s per wall s) of the paper's case at 50 and
    100 samples/s beside its floor, the samples times a chained ping-pong's
    round trip;
@@ -44,6 +46,8 @@ LOCKSTEP_FLOOR_RATIO_TARGET = 1.5
 ROA_SECONDS_TARGET = 10.0
 ROA_SPEEDUP_TARGET = 100.0
 ROA_DISAGREEMENT_TARGET = 0.005
+#: Alternating (ping-pong, loop) pairs per latency rate; the duration is split among them.
+LATENCY_ROUNDS = 3
 #: The battery limit of the loop benchmarks (the controller's work does not depend on it).
 LOOP_BATTERY_LIMIT_PU = 0.3
 
@@ -198,13 +202,20 @@ def node_cmd(module: str, params: dict) -> list[str]:
     return node_command(module, params)
 
 
+#: The real controller node in the echo's place: it answers the ping (a PMU message) with a command
+#: stamped like it, which the ping takes as its pong.
+CONTROLLER_AS_PEER = [sys.executable, "-m", "nni_battery_controller.controller_node", "--ros-args",
+                      "-r", "pmu:=bench/ping", "-r", "battery/command:=bench/pong",
+                      "-p", f"battery_limit_pu:={LOOP_BATTERY_LIMIT_PU}"]
+
+
 def pingpong(env: dict, log_dir: Path, mode: str, rate_hz: float = 100.0, duration_s: float = 0.0,
-             samples: int = 0) -> dict:
-    """One ping-pong run in two processes; the ping's JSON result."""
+             samples: int = 0, peer: list[str] | None = None) -> dict:
+    """One ping-pong run in two processes (the bare echo, or ``peer``); the ping's JSON result."""
     from bench.pingpong import RESULT_PREFIX
 
     with children(env, log_dir) as procs:
-        procs.start("echo", [sys.executable, "-m", "bench.pingpong", "echo"])
+        procs.start("echo", peer or [sys.executable, "-m", "bench.pingpong", "echo"])
         procs.start("ping", [sys.executable, "-m", "bench.pingpong", "ping", "--mode", mode, "--rate", str(rate_hz),
                              "--duration", str(duration_s), "--samples", str(samples)])
         status = procs.wait("ping", timeout_s=60.0 + duration_s + samples * 0.05)
@@ -245,22 +256,66 @@ def percentiles_ms(values_ns) -> dict:
             "mean": float(ms.mean())}
 
 
-def bench_latency(env, log_root: Path, diagnostics, rates, duration_s: float) -> list[dict]:
+def bench_latency(env, log_root: Path, diagnostics, rates, duration_s: float, rounds: int) -> list[dict]:
+    """Loop and ping-pong at each rate, in ``rounds`` alternating pairs of ``duration_s / rounds`` each.
+
+    The machine drifts between runs by more than the effect measured (the
+    ping-pong p50 alone moved by 30 % between runs a minute apart), so each
+    round's ratio compares back-to-back runs, and the reported ratio is their
+    median. Ping-pong percentiles pool every round trip; the loop's come from
+    the plant's diagnostics per round (median of the rounds' p50 and p99, the
+    largest max); misses and samples are summed over all rounds.
+    """
     rows = []
+    part_s = duration_s / rounds
     for rate in rates:
-        print(f"bench: latency at {rate:g}/s, {duration_s:g} s ping-pong then {duration_s:g} s closed loop",
+        print(f"bench: latency at {rate:g}/s, {rounds} x ({part_s:g} s ping-pong, {part_s:g} s closed loop)",
               file=sys.stderr, flush=True)
-        ping = pingpong(env, log_root / f"pingpong_{rate:g}", "timed", rate_hz=rate, duration_s=duration_s)
-        final = closed_loop(env, log_root / f"realtime_{rate:g}", diagnostics, "realtime", rate, duration_s)[-1][1]
+        trips, pings, loops, ratios = [], [], [], []
+        for index in range(1, rounds + 1):
+            ping = pingpong(env, log_root / f"pingpong_{rate:g}_{index}", "timed", rate_hz=rate, duration_s=part_s)
+            final = closed_loop(env, log_root / f"realtime_{rate:g}_{index}", diagnostics, "realtime", rate,
+                                part_s)[-1][1]
+            trips += ping["round_trips_ns"]
+            pings.append(ping)
+            loops.append(final)
+            ratios.append(float(final["latency_p50_ms"]) / percentiles_ms(ping["round_trips_ns"])["p50"])
         rows.append({
-            "rate_hz": rate, "duration_s": duration_s,
-            "pingpong_ms": percentiles_ms(ping["round_trips_ns"]), "pingpong_samples": ping["sent"],
-            "pingpong_deadline_misses": ping["deadline_misses"], "pingpong_unanswered": ping["lost_or_unanswered"],
-            "loop_ms": {q: float(final[f"latency_{q}_ms"]) for q in ("p50", "p99", "max")},
-            "loop_samples": int(final["samples"]), "loop_commands": int(final["commands"]),
-            "loop_deadline_misses": int(final["deadline_misses"]), "loop_late": int(final["late"]),
-            "loop_jitter_ms": {q: float(final[f"jitter_{q}_ms"]) for q in ("p50", "p99", "max")},
+            "rate_hz": rate, "duration_s": duration_s, "rounds": rounds,
+            "pingpong_ms": percentiles_ms(trips), "pingpong_samples": sum(p["sent"] for p in pings),
+            "pingpong_deadline_misses": sum(p["deadline_misses"] for p in pings),
+            "pingpong_unanswered": sum(p["lost_or_unanswered"] for p in pings),
+            "loop_ms": {"p50": float(np.median([float(f["latency_p50_ms"]) for f in loops])),
+                        "p99": float(np.median([float(f["latency_p99_ms"]) for f in loops])),
+                        "max": max(float(f["latency_max_ms"]) for f in loops)},
+            "p50_ratio": float(np.median(ratios)), "round_ratios": ratios,
+            "loop_measurements": sum(int(f["measurements"]) for f in loops),
+            "loop_commands": sum(int(f["commands"]) for f in loops),
+            "loop_deadline_misses": sum(int(f["deadline_misses"]) for f in loops),
+            "loop_late": sum(int(f["late"]) for f in loops),
+            "loop_jitter_p99_ms": max(float(f["jitter_p99_ms"]) for f in loops),
         })
+    return rows
+
+
+def bench_controller_share(env, log_root: Path, rate_hz: float, rounds: int, duration_s: float) -> list[dict]:
+    """Timed ping against the bare echo and against the controller node, alternating round by round.
+
+    Both see the same ping, timer and transport, so the difference of their
+    round trips is what the controller node (its callback and its larger
+    executor) adds to the loop; alternating spreads the machine's drift over both.
+    """
+    print(f"bench: controller share at {rate_hz:g}/s, {rounds} x ({duration_s:g} s echo, {duration_s:g} s "
+          "controller)", file=sys.stderr, flush=True)
+    rows = []
+    peer_cmd = CONTROLLER_AS_PEER + ["-p", f"sample_rate_hz:={rate_hz}"]
+    for index in range(rounds):
+        row = {"round": index + 1}
+        for name, peer in (("echo", None), ("controller", peer_cmd)):
+            result = pingpong(env, log_root / f"share_{name}_{index + 1}", "timed", rate_hz=rate_hz,
+                              duration_s=duration_s, peer=peer)
+            row[name] = percentiles_ms(result["round_trips_ns"])
+        rows.append(row)
     return rows
 
 
@@ -272,18 +327,16 @@ def bench_lockstep(env, log_root: Path, diagnostics, rates, sim_duration_s: floa
               f"{sim_duration_s:g} simulated s of the loop", file=sys.stderr, flush=True)
         chained = pingpong(env, log_root / f"pingpong_chained_{rate:g}", "chained", samples=chained_samples)
         round_trip_s = float(np.mean(chained["round_trips_ns"])) * 1e-9
-        statuses = closed_loop(env, log_root / f"lockstep_{rate:g}", diagnostics, "lockstep", rate, sim_duration_s)
-        # Wall time between the first status of the running loop and the final one (published when the run ends).
-        running = [(wall, float(values["sim_time_s"])) for wall, values in statuses if int(values["samples"]) > 0]
-        if len(running) < 2:
-            raise RuntimeError(f"lockstep at {rate:g}/s: fewer than two statuses of the running loop; "
-                               "run longer (the plant reports once a second)")
-        (wall0, sim0), (wall1, sim1) = running[0], running[-1]
-        throughput = (sim1 - sim0) / (wall1 - wall0)
-        final = statuses[-1][1]
+        final = closed_loop(env, log_root / f"lockstep_{rate:g}", diagnostics, "lockstep", rate,
+                            sim_duration_s)[-1][1]
+        # The whole run, from the plant's final status: simulated time over the wall time since its start.
+        sim_s, wall_s = float(final["sim_time_s"]), float(final["run_wall_s"])
+        if not (sim_s > 0 and wall_s > 0):
+            raise RuntimeError(f"lockstep at {rate:g}/s: the plant's final status shows no run ({final})")
+        throughput = sim_s / wall_s
         floor = (1.0 / rate) / round_trip_s
         rows.append({
-            "rate_hz": rate, "sim_duration_s": sim_duration_s, "measured_over_sim_s": sim1 - sim0,
+            "rate_hz": rate, "sim_duration_s": sim_duration_s, "run_wall_s": wall_s,
             "throughput": throughput, "floor_throughput": floor, "floor_ratio": floor / throughput,
             "round_trip_mean_ms": round_trip_s * 1e3, "samples": int(final["samples"]),
             "latency_ms": {q: float(final[f"latency_{q}_ms"]) for q in ("p50", "p99", "max")},
@@ -343,7 +396,7 @@ def verdict(ok: bool) -> str:
     return "met" if ok else "**not met**"
 
 
-def report(command: str, machine: dict, quick: bool, latency, lockstep, roa_result, started: str,
+def report(command: str, machine: dict, quick: bool, latency, share, lockstep, roa_result, started: str,
            wall_s: float) -> str:
     lines = ["# Benchmarks", "",
              f"Written by `{command}` on {started} (whole run {wall_s:.0f} s of wall time). "
@@ -354,48 +407,76 @@ def report(command: str, machine: dict, quick: bool, latency, lockstep, roa_resu
     lines += ["## Machine", "",
               f"- CPU: {machine['cpu']}, {machine['cores']} cores; Linux {machine['kernel']}",
               f"- Python {machine['python']}; {packages}",
-              f"- RMW: {machine['rmw']}; localhost discovery, ROS domain {machine['domain_id']}",
+              f"- RMW: {machine['rmw']}; executor {machine['executor']}; localhost discovery, ROS domain "
+              f"{machine['domain_id']}",
               f"- load average (1, 5, 15 min) at start {fmt_load(machine['load_average_at_start'])}, "
               f"at end {fmt_load(machine['load_average_at_end'])} (other work on the machine shows here)", ""]
     if latency:
         lines += ["## 1. Closed-loop latency (realtime) beside a bare rclpy ping-pong", "",
                   "Loop: the plant and controller nodes as `nni-demo` starts them (no logger), realtime mode, "
-                  f"b = {LOOP_BATTERY_LIMIT_PU}; latency per sample, measured at the plant, from publishing the "
-                  "measurement to the arrival of the command that answers it. Ping-pong: two processes, "
+                  f"b = {LOOP_BATTERY_LIMIT_PU}; latency per sample, measured at the plant, from the measurement's "
+                  "instant (its stamp) to the arrival of the command that answers it. Ping-pong: two processes, "
                   "sensor_msgs/JointState with `contract.SAMPLE_QOS`, the same executor loop, a timer at the same "
-                  "rate, no work between receive and send (`bench/pingpong.py`). A deadline miss: a reporting "
-                  "instant that finds the previous sample unanswered.", "",
+                  "rate, no work between receive and send (`bench/pingpong.py`). Both time a sample from its "
+                  "ideal instant (the plant measures and stamps at its reporting instants t0 + k T; the ping "
+                  "stamps each ping with its tick's instant), so the timer's lateness counts in both. "
+                  "A deadline miss: a reporting "
+                  "instant that finds the previous sample unanswered. Each rate runs as "
+                  f"{latency[0]['rounds']} alternating pairs (ping-pong, then loop) of "
+                  f"{latency[0]['duration_s'] / latency[0]['rounds']:g} s each; the p50 ratio is the median of "
+                  "the pairs' ratios (each pair back to back, so that the machine's drift between runs, larger "
+                  "than the effect measured, cancels), the rounds' ratios in brackets. Ping-pong percentiles "
+                  "pool all round trips; the loop's are the median of the rounds' p50 and p99 (from the plant's "
+                  "diagnostics) and the largest max.", "",
                   "| rate (/s) | s | ping-pong p50 / p99 / max (ms) | loop p50 / p99 / max (ms) | p50 ratio "
-                  "| misses loop / ping-pong | samples | timer jitter p99 (ms) |",
-                  "|---:|---:|---|---|---:|---|---:|---:|"]
+                  "(rounds) | misses loop / ping-pong | measurements | timer jitter p99 (ms) |",
+                  "|---:|---:|---|---|---|---|---:|---:|"]
         for row in latency:
             pp, lp = row["pingpong_ms"], row["loop_ms"]
+            rounds = ", ".join(f"{ratio:.2f}" for ratio in row["round_ratios"])
             lines.append(f"| {row['rate_hz']:g} | {row['duration_s']:g} | {pp['p50']:.3f} / {pp['p99']:.3f} / "
                          f"{pp['max']:.2f} | {lp['p50']:.3f} / {lp['p99']:.3f} / {lp['max']:.2f} | "
-                         f"{lp['p50'] / pp['p50']:.2f} | {row['loop_deadline_misses']} / "
-                         f"{row['pingpong_deadline_misses']} | {row['loop_samples']} | "
-                         f"{row['loop_jitter_ms']['p99']:.3f} |")
+                         f"**{row['p50_ratio']:.2f}** ({rounds}) | {row['loop_deadline_misses']} / "
+                         f"{row['pingpong_deadline_misses']} | {row['loop_measurements']} | "
+                         f"{row['loop_jitter_p99_ms']:.3f} |")
         at100 = [row for row in latency if row["rate_hz"] == 100.0]
         if at100:
             row = at100[0]
-            ratio = row["loop_ms"]["p50"] / row["pingpong_ms"]["p50"]
+            ratio = row["p50_ratio"]
             lines += ["", f"Targets at 100/s: p50 ratio {ratio:.2f} <= {LATENCY_RATIO_TARGET}: "
                           f"{verdict(ratio <= LATENCY_RATIO_TARGET)}; deadline misses "
                           f"{row['loop_deadline_misses']} over {row['duration_s']:g} s = 0: "
                           f"{verdict(row['loop_deadline_misses'] == 0)}."]
         lines.append("")
+    if share:
+        echo_p50 = np.mean([row["echo"]["p50"] for row in share])
+        ctrl_p50 = np.mean([row["controller"]["p50"] for row in share])
+        lines += ["### 1b. The controller's share of the loop's latency", "",
+                  "The same timed ping at 100/s, answered in alternate rounds by the bare echo and by the "
+                  "controller node itself (topics remapped: `pmu:=bench/ping`, `battery/command:=bench/pong`): "
+                  "the difference is what the controller node (its callback, and its executor dispatching a node "
+                  "with timers and parameter services besides the subscription) adds; the rest of the loop's excess over the ping-pong is the plant's.", "",
+                  "| round | echo p50 / p99 (ms) | controller p50 / p99 (ms) | controller - echo, p50 (ms) |",
+                  "|---:|---|---|---:|"]
+        for row in share:
+            lines.append(f"| {row['round']} | {row['echo']['p50']:.3f} / {row['echo']['p99']:.3f} | "
+                         f"{row['controller']['p50']:.3f} / {row['controller']['p99']:.3f} | "
+                         f"{row['controller']['p50'] - row['echo']['p50']:+.3f} |")
+        lines += [f"| mean | {echo_p50:.3f} | {ctrl_p50:.3f} | {ctrl_p50 - echo_p50:+.3f} |", ""]
     if lockstep:
         lines += ["## 2. Lockstep throughput beside its floor", "",
                   "The paper's case (delta(0) = 0.2 rad, b = 0.3) in lockstep mode: the plant publishes /clock and "
                   "sample k and advances only when the command for k has arrived. Throughput = simulated s per "
-                  "wall s, from the plant's diagnostics (first status of the running loop to the final one). "
+                  "wall s over the whole run, from the plant's final diagnostics (`sim_time_s` / `run_wall_s`, "
+                  "wall time since its start). "
                   "Floor = what the transport alone allows: period / mean round trip of a chained ping-pong "
                   "(each pong sends the next ping at once), measured right before each run.", "",
-                  "| rate (/s) | simulated s measured | throughput (x real time) | floor (x real time) "
+                  "| rate (/s) | simulated s / wall s | throughput (x real time) | floor (x real time) "
                   "| floor / throughput | ping-pong round trip mean (ms) | loop latency p50 / p99 (ms) | misses |",
                   "|---:|---:|---:|---:|---:|---:|---|---:|"]
         for row in lockstep:
-            lines.append(f"| {row['rate_hz']:g} | {row['measured_over_sim_s']:.1f} | {row['throughput']:.1f} | "
+            lines.append(f"| {row['rate_hz']:g} | {row['sim_duration_s']:g} / {row['run_wall_s']:.2f} | "
+                         f"{row['throughput']:.1f} | "
                          f"{row['floor_throughput']:.1f} | {row['floor_ratio']:.2f} | "
                          f"{row['round_trip_mean_ms']:.3f} | {row['latency_ms']['p50']:.3f} / "
                          f"{row['latency_ms']['p99']:.3f} | {row['deadline_misses']} |")
@@ -439,6 +520,19 @@ def report(command: str, machine: dict, quick: bool, latency, lockstep, roa_resu
     return "\n".join(lines)
 
 
+def executor_name() -> str:
+    """The executor class the nodes (and the ping-pong) spin, from ``node_main.make_executor``."""
+    import rclpy
+
+    from nni_msgs_adapter.node_main import make_executor
+
+    rclpy.init()
+    try:
+        return type(make_executor()).__name__
+    finally:
+        rclpy.shutdown()
+
+
 def fmt_load(load) -> str:
     return ", ".join(f"{value:.2f}" for value in load)
 
@@ -453,12 +547,14 @@ def main(argv=None) -> int:
     started_text, started = time.strftime("%Y-%m-%d %H:%M %Z"), time.monotonic()
     machine = machine_description()
     machine["domain_id"] = args.domain_id
-    duration_s = 5.0 if args.quick else 30.0
-    latency = lockstep = roa_result = None
+    machine["executor"] = executor_name()
+    duration_s = 6.0 if args.quick else 30.0
+    latency = share = lockstep = roa_result = None
     diagnostics = PlantDiagnostics(args.domain_id) if {"latency", "lockstep"} & set(args.only) else None
     try:
         if "latency" in args.only:
-            latency = bench_latency(env, log_root, diagnostics, args.rates, duration_s)
+            latency = bench_latency(env, log_root, diagnostics, args.rates, duration_s, LATENCY_ROUNDS)
+            share = bench_controller_share(env, log_root, 100.0, 4, 3.0 if args.quick else 15.0)
         if "lockstep" in args.only:
             lockstep = bench_lockstep(env, log_root, diagnostics, [50.0, 100.0], 30.0 if args.quick else 60.0,
                                       500 if args.quick else 5000)
@@ -468,7 +564,7 @@ def main(argv=None) -> int:
     if "roa" in args.only:
         roa_result = bench_roa(40 if args.quick else 200)
     machine["load_average_at_end"] = os.getloadavg()
-    text = report(command, machine, args.quick, latency, lockstep, roa_result, started_text,
+    text = report(command, machine, args.quick, latency, share, lockstep, roa_result, started_text,
                   time.monotonic() - started)
     tmp = args.out.with_name(args.out.name + ".part")
     tmp.write_text(text)

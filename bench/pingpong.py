@@ -2,13 +2,16 @@
 
 Two processes, the same message type (sensor_msgs/JointState, filled as a PMU
 measurement) and QoS (``contract.SAMPLE_QOS``) as the loop, the same
-single-threaded executor loop as the nodes (``node_main.run_node``), and no
+executor loop as the nodes (``node_main.run_node``), and no
 work in between: ``echo`` publishes every message it receives straight back,
 ``ping`` measures the round trip.
 
 * ``ping --mode timed --rate R``: a wall-clock timer publishes R pings/s, as
-  the realtime plant publishes measurements; a deadline miss is a tick that
-  finds the previous ping unanswered (the plant's definition).
+  the realtime plant publishes measurements, each stamped with its ideal
+  instant t0 + k / R and timed from it (the plant's latency runs from its
+  measurement instant, so the timer's lateness counts in both); a deadline
+  miss is a tick that finds the previous ping unanswered (the plant's
+  definition).
 * ``ping --mode chained``: each pong triggers the next ping at once, as the
   lockstep plant's next sample waits for the command: the lockstep floor.
 
@@ -50,6 +53,7 @@ class Ping(Node):
     def __init__(self, mode: str, rate_hz: float, duration_s: float, samples: int):
         super().__init__("pingpong_ping")
         self.mode, self.period_s, self.duration_s, self.samples = mode, 1.0 / rate_hz, duration_s, samples
+        self._period_ns = round(1e9 / rate_hz)
         self.round_trips_ns: list[int] = []
         self.deadline_misses = 0
         self.sent = 0
@@ -76,23 +80,24 @@ class Ping(Node):
         self._t0_ns = now
         if self.mode == "timed":
             self._tick_timer = self.create_timer(self.period_s, self._on_tick)
-        self._send()
+        self._send(now)
 
-    def _send(self) -> None:
-        now = self._now_ns()
-        self._outstanding = now
-        self._sent_ns[now] = now
-        self._pub.publish(contract.pmu_message(now, 0.9, 0.0, 0.8))
+    def _send(self, instant_ns: int) -> None:
+        """A ping stamped with (and timed from) ``instant_ns``."""
+        self._outstanding = instant_ns
+        self._sent_ns[instant_ns] = instant_ns
+        self._pub.publish(contract.pmu_message(instant_ns, 0.9, 0.0, 0.8))
         self.sent += 1
 
     def _on_tick(self) -> None:
+        now = self._now_ns()
         if self._outstanding is not None:
             self.deadline_misses += 1
-        if (self._now_ns() - self._t0_ns) * 1e-9 >= self.duration_s:
+        if (now - self._t0_ns) * 1e-9 >= self.duration_s:
             self._tick_timer.cancel()
             self.done.set_result(True)
             return
-        self._send()
+        self._send(self._t0_ns + (now - self._t0_ns) // self._period_ns * self._period_ns)
 
     def _on_pong(self, msg) -> None:
         arrival = self._now_ns()
@@ -107,7 +112,7 @@ class Ping(Node):
             if len(self.round_trips_ns) >= self.samples:
                 self.done.set_result(True)
             else:
-                self._send()
+                self._send(self._now_ns())
 
     def close(self) -> None:
         lost = self.sent - len(self.round_trips_ns)

@@ -387,7 +387,7 @@ def test_soak_zero_loss_on_reliable_topics(tmp_path):
             time.sleep(1.0)
             diag = plant_diagnostics(probe)
             assert logger.interrupt() == 0
-            sent = int(diag["samples"])
+            sent = int(diag["measurements"])
             received = probe.take(contract.TOPIC_PMU)
         finally:
             probe.close()

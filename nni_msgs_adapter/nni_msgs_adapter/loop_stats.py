@@ -98,9 +98,11 @@ class LoopStats:
         self.command_timeouts = 0
         self.duplicates = 0
         self.skipped_reports = 0
+        self.measurements = 0
 
     def sent(self, stamp_ns: int, wall_ns: int) -> None:
         """A measurement with ``stamp_ns`` left the plant at ``wall_ns``."""
+        self.measurements += 1
         self._sent_wall_ns[stamp_ns] = wall_ns
         if len(self._sent_wall_ns) > _REMEMBERED_SAMPLES:
             self._sent_wall_ns.popitem(last=False)
@@ -132,7 +134,8 @@ class LoopStats:
     def summary(self) -> dict:
         """Counters and latency/jitter percentiles in ms, for diagnostics."""
         out = {
-            "commands": self.latency.count, "late": self.late, "rejected": self.rejected,
+            "measurements": self.measurements, "commands": self.latency.count, "late": self.late,
+            "rejected": self.rejected,
             "duplicates": self.duplicates, "deadline_misses": self.deadline_misses,
             "command_timeouts": self.command_timeouts, "skipped_reports": self.skipped_reports,
         }
