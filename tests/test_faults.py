@@ -294,6 +294,31 @@ def test_a_stalled_realtime_plant_stays_on_its_reporting_grid_and_counts_what_it
     assert set(stamps.tolist()) <= state_stamps, "each measurement's instant has its true state"
 
 
+def test_a_realtime_run_stalled_across_its_end_still_ends_at_duration(tmp_path):
+    """The tick that finds the run over, however late, reports the last instant N T and nothing after it."""
+    rate, duration = 50.0, 1.0
+    domain = fresh_domain_id()
+    with node_processes(tmp_path, domain) as start:
+        probe = Probe(domain, (contract.TOPIC_PMU, contract.TOPIC_PLANT_STATE))
+        try:
+            start("controller", CONTROLLER, {"battery_limit_pu": 0.3})
+            plant = start("plant", PLANT, {"mode": "realtime", "pmu_rate_hz": rate, "duration_s": duration,
+                                           "wait_for_subscribers": 2})
+            assert wait_until(lambda: len(probe.take(contract.TOPIC_PLANT_STATE)) > 0, 30.0)
+            time.sleep(0.7)
+            plant.proc.send_signal(signal.SIGSTOP)
+            time.sleep(0.6)  # across the run's end at 1.0 s
+            plant.proc.send_signal(signal.SIGCONT)
+            assert plant.wait(timeout=30.0) == 0
+            time.sleep(0.3)
+        finally:
+            probe.close()
+    states = [contract.ns_from_time(m.header.stamp) for m in probe.take(contract.TOPIC_PLANT_STATE)]
+    measurements = [contract.ns_from_time(m.header.stamp) for m in probe.take(contract.TOPIC_PMU)]
+    assert states[-1] - states[0] == round(duration * 1e9), "the final state is at t0 + duration"
+    assert max(measurements) < states[-1], "no measurement at or after the end"
+
+
 def test_killed_plant_leaves_the_controller_idle_and_alive(tmp_path):
     domain = fresh_domain_id()
     with node_processes(tmp_path, domain) as start:

@@ -21,8 +21,9 @@ from hypothesis import strategies as st
 from numpy.testing import assert_allclose
 from scipy.integrate import solve_ivp
 
-from nni_battery_controller.law import SampledController, q1_matrix
+from nni_battery_controller.law import ControllerParams, SampledController, q1_matrix
 from nni_battery_controller.simulate import assess, simulate_continuous, simulate_sampled
+from nni_plant_sim.integrators import advance
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.scenarios import InitialAngle
 
@@ -405,3 +406,19 @@ def test_independent_fine_step_integration_agrees_with_nni_simulate(tmp_path, nn
         continuous = simulate_continuous(paper_plant, ctrl, paper_fault, DURATION_S)
         tolerance = 1e-3 if 0 < b < math.inf else 1e-9 * np.max(np.abs(angle_dev)) + 1e-9
         assert np.max(np.abs(continuous.angle_dev_rad - angle_dev)) <= tolerance
+
+
+def test_a_diverging_sampled_design_is_reported_unstable_not_raised(paper_plant, paper_fault, paper_controller):
+    """L = 100 at 10 samples/s is far outside what the sampled loop tolerates: it overflows to inf.
+
+    The simulation then reports no state and no battery power from the
+    overflow on, and assess() calls the run unstable; a diverged one-state RK4
+    gives NaN (as numpy's sine would) rather than math's domain error.
+    """
+    ctrl = ControllerParams(gain_l=100.0, battery_limit_pu=math.inf)
+    run = simulate_sampled(paper_plant, ctrl, paper_fault, 60.0, 10.0)
+    diverged = np.isnan(run.delta_rad)
+    assert diverged.any() and diverged[-1] and np.all(np.isfinite(run.delta_rad[~diverged]))
+    assert np.all(run.battery_power_pu[diverged] == 0.0)
+    assert not assess(run).stable
+    assert np.all(np.isnan(advance(0.0, 0.01, [math.inf, 0.0], 0.0, paper_plant, paper_fault)))

@@ -298,8 +298,14 @@ def simulate_sampled(
     states = np.empty((n + 1, 3))
     outputs = np.empty((n + 1, 3))
     for k in range(n + 1):
+        angle_dev = float(x[0]) - plant.delta_bar_rad
+        if not math.isfinite(angle_dev):
+            # The run diverged (an unstable design overflowed): no state from here on, no battery power.
+            states[k:] = np.nan
+            outputs[k:] = (0.0, np.nan, 0.0)
+            break
         x3 = law.x3
-        power, w, saturated = law.step(float(x[0]) - plant.delta_bar_rad)
+        power, w, saturated = law.step(angle_dev)
         states[k] = (x[0], x[1], x3)
         outputs[k] = (power, w, saturated)
         if k < n:

@@ -108,20 +108,34 @@ class LoopStats:
             self._sent_wall_ns.popitem(last=False)
         self.last_sent_stamp_ns, self.last_sent_wall_ns = stamp_ns, wall_ns
 
-    def tick(self, now_ns: int, ideal_ns: int) -> None:
-        """A realtime reporting instant: record timer jitter; a miss if the last sample is unanswered."""
-        self.jitter.add(now_ns - ideal_ns)
+    def tick(self, now_ns: int, ideal_ns: int | None) -> None:
+        """A realtime reporting instant, reported at ``now_ns``: a miss if the last sample is unanswered.
+
+        ``ideal_ns``: the instant, when the reporting timer fired for it (its
+        jitter is recorded); None when something else reported it first.
+        """
+        if ideal_ns is not None:
+            self.jitter.add(now_ns - ideal_ns)
         if self.last_sent_stamp_ns is not None and self.last_answered_stamp_ns != self.last_sent_stamp_ns:
             self.deadline_misses += 1
 
     def answered(self, stamp_ns: int, arrival_ns: int) -> bool:
-        """A command answering ``stamp_ns`` arrived. False for a duplicate or out-of-order answer."""
+        """A command stamped ``stamp_ns`` arrived. False for a duplicate or out-of-order answer (not to be applied).
+
+        Only answers to measurements this plant sent order the answers and
+        count as such. A command that answers none (the controller's zero on
+        stale data, stamped after the last measurement it saw; an answer to a
+        sample too old to be remembered) is to be applied but leaves the
+        bookkeeping alone: were it to count, its stamp could be later than the
+        next measurement's and the real answer to that would be refused.
+        """
         if self.last_answered_stamp_ns is not None and stamp_ns <= self.last_answered_stamp_ns:
             self.duplicates += 1
             return False
         sent_ns = self._sent_wall_ns.get(stamp_ns)
-        if sent_ns is not None:
-            self.latency.add(arrival_ns - sent_ns)
+        if sent_ns is None:
+            return True
+        self.latency.add(arrival_ns - sent_ns)
         if stamp_ns != self.last_sent_stamp_ns:
             self.late += 1  # a newer measurement was already out
         self.last_answered_stamp_ns, self.last_answer_wall_ns = stamp_ns, arrival_ns

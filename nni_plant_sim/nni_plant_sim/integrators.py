@@ -65,6 +65,7 @@ def advance(
     """
     if not max_step_s > 0:
         raise ValueError(f"max_step_s must be positive, got {max_step_s}")
+    t0_s, t1_s = float(t0_s), float(t1_s)  # numpy scalars (np.arange times) would make every stage numpy
     cuts = [t0_s, *(tb for tb in scenario.breakpoints() if t0_s < tb < t1_s), t1_s]
     x = np.asarray(x, dtype=float)
     # One trajectory runs on Python floats: numpy's per-call overhead on a

@@ -121,7 +121,8 @@ def swing_acceleration(delta_rad, speed_rad_s, battery_power_pu, plant: SmibPara
     ``M delta'' = P_M + P_ST - P_max sin(delta) - D delta'``. Python floats in,
     float out (``math.sin``: the plant node's path, 40 calls a sample, where
     numpy's per-call overhead on scalars would dominate); numpy arrays in,
-    array out (vectorised over trajectories).
+    array out (vectorised over trajectories). A diverged state (inf) gives NaN
+    in both, as numpy does, rather than math's domain error.
 
     Parameters
     ----------
@@ -135,9 +136,11 @@ def swing_acceleration(delta_rad, speed_rad_s, battery_power_pu, plant: SmibPara
         Mechanical power and maximum transfer in force now (a fault scenario
         changes them over time; see :mod:`nni_plant_sim.scenarios`).
     """
-    sin = math.sin if isinstance(delta_rad, float) else np.sin
-    return (p_mech_pu + battery_power_pu - p_max_pu * sin(delta_rad) - plant.damping_pu * speed_rad_s) \
-        / plant.inertia_m
+    if isinstance(delta_rad, float):
+        sine = math.sin(delta_rad) if math.isfinite(delta_rad) else math.nan
+    else:
+        sine = np.sin(delta_rad)
+    return (p_mech_pu + battery_power_pu - p_max_pu * sine - plant.damping_pu * speed_rad_s) / plant.inertia_m
 
 
 def swing_rhs(x, battery_power_pu, plant: SmibParams, p_mech_pu: float, p_max_pu: float):

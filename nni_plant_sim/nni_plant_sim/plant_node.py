@@ -270,9 +270,9 @@ class PlantNode(Node):
     # --- realtime ------------------------------------------------------------------------
 
     def _on_tick(self) -> None:
-        self._report_due(self._now_ns())
+        self._report_due(self._now_ns(), by_timer=True)
 
-    def _report_due(self, now_ns: int) -> None:
+    def _report_due(self, now_ns: int, by_timer: bool = False) -> None:
         """Report the latest reporting instant t0 + k T at or before ``now_ns``, unless it is reported already.
 
         As a PMU does (IEEE C37.118), the measurement is of the state at that
@@ -281,33 +281,42 @@ class PlantNode(Node):
         instant and the publish, and the timer's lateness counts as latency. A
         timer that fell more than a period behind skips instants (counted)
         instead of drifting. A command or a service call that arrives after an
-        instant whose tick is late calls this first, so that the instant is
-        reported with the power in force at it.
+        instant whose tick is late calls this first (``by_timer`` False: its
+        delay is not the timer's jitter), so that the instant is reported with
+        the power in force at it. A run of ``duration_s`` ends at its last
+        instant N T, however late the tick that finds it.
         """
+        if self.done.done():
+            return
         instant = (now_ns - self._t0_ns) // self._period_ns
-        if instant < self._sample or self.done.done():
+        duration = self._values["duration_s"]
+        last = round(duration / self._period_s) if duration > 0 else None
+        if last is not None:
+            instant = min(instant, last)
+        if instant < self._sample:
             return
         self._stats.skipped_reports += instant - self._sample
         self._sample = instant
         self._advance_to(instant * self._period_s)
         self._ahead = None  # the measurement fixes the past
         stamp_ns = self._t0_ns + instant * self._period_ns
-        duration = self._values["duration_s"]
         # The run's end, as in lockstep: its state, but no measurement nobody could answer.
-        final = duration > 0 and instant >= round(duration / self._period_s)
+        final = instant == last
         if not final:
             # The bookkeeping below cannot race the answer, which waits for this callback to return.
             self._publish_measurement(stamp_ns)
-        self._stats.tick(now_ns, stamp_ns)
-        if self._stats.command_age_s(now_ns) > self._values["command_timeout_s"] and self._battery_power_pu != 0:
-            self._battery_power_pu = 0.0
-            self._stats.command_timeouts += 1
+        self._stats.tick(now_ns, stamp_ns if by_timer else None)
         self._publish_state(stamp_ns)
         if final:
             self._finish()
             return
         self._stats.sent(stamp_ns, stamp_ns)
         self._sample += 1
+        if self._stats.command_age_s(now_ns) > self._values["command_timeout_s"] and self._battery_power_pu != 0:
+            # The command held until now, when its age is found beyond the timeout: zero from here.
+            self._advance_to((now_ns - self._t0_ns) * 1e-9)
+            self._battery_power_pu = 0.0
+            self._stats.command_timeouts += 1
 
     # --- lockstep ------------------------------------------------------------------------
 
@@ -376,6 +385,8 @@ class PlantNode(Node):
         if not self._started:
             return
         self._report_due(arrival_ns)  # an instant passed unreported (its tick is late): report it first
+        if self.done.done():
+            return  # that was the run's last instant
         if not self._stats.answered(stamp_ns, arrival_ns):
             return  # duplicate or older than the command in force
         self._advance_to((arrival_ns - self._t0_ns) * 1e-9)
