@@ -9,7 +9,7 @@ Each table sets a measurement beside a baseline taken in the same run:
    alternate rounds by the bare echo and by the controller node itself;
 2. lockstep throughput (simulated s per wall s) of the paper's case at 50 and
    100 samples/s beside its floor, the samples times a chained ping-pong's
-   round trip;
+   round trip, in alternating rounds;
 3. the region-of-attraction sweep, 200 x 200 x 4, vectorised, beside the
    per-trajectory scipy solve_ivp loop (``simulate_continuous``) on a subsample,
    extrapolated, with the fraction of cells where the two disagree.
@@ -30,7 +30,6 @@ import platform
 import signal
 import subprocess
 import sys
-import threading
 import time
 from contextlib import contextmanager
 from importlib import metadata
@@ -46,7 +45,7 @@ LOCKSTEP_FLOOR_RATIO_TARGET = 1.5
 ROA_SECONDS_TARGET = 10.0
 ROA_SPEEDUP_TARGET = 100.0
 ROA_DISAGREEMENT_TARGET = 0.005
-#: Alternating (ping-pong, loop) pairs per latency rate; the duration is split among them.
+#: Alternating (ping-pong, loop) pairs per rate, latency and lockstep; the duration is split among them.
 LATENCY_ROUNDS = 3
 #: The battery limit of the loop benchmarks (the controller's work does not depend on it).
 LOOP_BATTERY_LIMIT_PU = 0.3
@@ -145,57 +144,6 @@ def children(env: dict, log_dir: Path):
         group.stop_all()
 
 
-class PlantDiagnostics:
-    """Listens to ``diagnostics`` in this process and keeps every status of the plant (wall time, values)."""
-
-    def __init__(self, domain_id: int):
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-
-        from nni_msgs_adapter import contract
-
-        self._contract = contract
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node("bench_diagnostics", context=self.context)
-        self.statuses: list[tuple[float, dict]] = []
-        self._lock = threading.Lock()
-        msg_class, topic, qos = contract.endpoint(contract.TOPIC_DIAGNOSTICS)
-        self.node.create_subscription(msg_class, topic, self._on_diagnostics, qos)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
-
-    def _on_diagnostics(self, msg) -> None:
-        values = self._contract.diagnostic_values(msg, "plant")
-        if values is not None:
-            with self._lock:
-                self.statuses.append((time.monotonic(), values))
-
-    def take(self) -> list[tuple[float, dict]]:
-        """The plant statuses received so far, and forget them."""
-        with self._lock:
-            taken, self.statuses = self.statuses, []
-        return taken
-
-    def _spin(self):
-        while self.context.ok():
-            try:
-                self.executor.spin_once(timeout_sec=0.1)
-            except Exception:  # context shut down under us at close()
-                return
-
-    def close(self):
-        import rclpy
-
-        rclpy.try_shutdown(context=self.context)
-        self._thread.join(timeout=2.0)
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-
-
 def node_cmd(module: str, params: dict) -> list[str]:
     from nni_battery_controller.demo import node_command
 
@@ -227,27 +175,29 @@ def pingpong(env: dict, log_dir: Path, mode: str, rate_hz: float = 100.0, durati
     raise RuntimeError("ping-pong printed no result")
 
 
-def closed_loop(env: dict, log_dir: Path, diagnostics: PlantDiagnostics, mode: str, rate_hz: float,
-                duration_s: float) -> list[tuple[float, dict]]:
-    """Plant and controller nodes as ``nni-demo`` starts them; the plant's diagnostics of the run."""
-    diagnostics.take()
+def closed_loop(env: dict, log_dir: Path, mode: str, rate_hz: float, duration_s: float) -> dict:
+    """Plant and controller nodes as ``nni-demo`` starts them; the plant's final diagnostics values.
+
+    Read from the JSON line the plant prints at exit, not over DDS: a listener in
+    this process had to discover every new plant before its run ended, and
+    after a short lockstep run (0.2 s) it sometimes had not (measured).
+    """
+    from nni_plant_sim.plant_node import SUMMARY_PREFIX
+
     with children(env, log_dir) as procs:
         procs.start("controller", node_cmd("nni_battery_controller.controller_node",
                                            {"battery_limit_pu": LOOP_BATTERY_LIMIT_PU, "sample_rate_hz": rate_hz}))
         procs.start("plant", node_cmd("nni_plant_sim.plant_node",
                                       {"mode": mode, "duration_s": duration_s, "pmu_rate_hz": rate_hz,
-                                       "wait_for_subscribers": 1,
-                                       # time for this process's diagnostics listener to match the new plant
-                                       "discovery_settle_s": 1.0}))
+                                       "wait_for_subscribers": 1}))
         limit = 60.0 + duration_s * (1.0 if mode == "realtime" else 2.0)
         status = procs.wait("plant", timeout_s=limit)
         if status != 0:
             raise RuntimeError(f"plant exited with {status}: {procs.output('plant').strip()[-400:]}")
-        time.sleep(0.5)  # the final diagnostics on their way
-    statuses = diagnostics.take()
-    if not statuses:
-        raise RuntimeError("no plant diagnostics received")
-    return statuses
+        for line in procs.output("plant").splitlines():
+            if line.startswith(SUMMARY_PREFIX):
+                return json.loads(line[len(SUMMARY_PREFIX):])
+    raise RuntimeError("the plant printed no summary")
 
 
 def percentiles_ms(values_ns) -> dict:
@@ -256,7 +206,7 @@ def percentiles_ms(values_ns) -> dict:
             "mean": float(ms.mean())}
 
 
-def bench_latency(env, log_root: Path, diagnostics, rates, duration_s: float, rounds: int) -> list[dict]:
+def bench_latency(env, log_root: Path, rates, duration_s: float, rounds: int) -> list[dict]:
     """Loop and ping-pong at each rate, in ``rounds`` alternating pairs of ``duration_s / rounds`` each.
 
     The machine drifts between runs by more than the effect measured (the
@@ -274,8 +224,7 @@ def bench_latency(env, log_root: Path, diagnostics, rates, duration_s: float, ro
         trips, pings, loops, ratios = [], [], [], []
         for index in range(1, rounds + 1):
             ping = pingpong(env, log_root / f"pingpong_{rate:g}_{index}", "timed", rate_hz=rate, duration_s=part_s)
-            final = closed_loop(env, log_root / f"realtime_{rate:g}_{index}", diagnostics, "realtime", rate,
-                                part_s)[-1][1]
+            final = closed_loop(env, log_root / f"realtime_{rate:g}_{index}", "realtime", rate, part_s)
             trips += ping["round_trips_ns"]
             pings.append(ping)
             loops.append(final)
@@ -319,28 +268,37 @@ def bench_controller_share(env, log_root: Path, rate_hz: float, rounds: int, dur
     return rows
 
 
-def bench_lockstep(env, log_root: Path, diagnostics, rates, sim_duration_s: float, chained_samples: int) -> list[dict]:
+def bench_lockstep(env, log_root: Path, rates, sim_duration_s: float, chained_samples: int,
+                   rounds: int) -> list[dict]:
+    """Lockstep runs beside chained ping-pongs, in ``rounds`` alternating pairs per rate (as the latency bench)."""
     rows = []
     for rate in rates:
-        # The floor is measured right before each run, so that both see the same machine.
-        print(f"bench: lockstep at {rate:g}/s: chained ping-pong of {chained_samples} round trips, then "
-              f"{sim_duration_s:g} simulated s of the loop", file=sys.stderr, flush=True)
-        chained = pingpong(env, log_root / f"pingpong_chained_{rate:g}", "chained", samples=chained_samples)
-        round_trip_s = float(np.mean(chained["round_trips_ns"])) * 1e-9
-        final = closed_loop(env, log_root / f"lockstep_{rate:g}", diagnostics, "lockstep", rate,
-                            sim_duration_s)[-1][1]
-        # The whole run, from the plant's final status: simulated time over the wall time since its start.
-        sim_s, wall_s = float(final["sim_time_s"]), float(final["run_wall_s"])
-        if not (sim_s > 0 and wall_s > 0):
-            raise RuntimeError(f"lockstep at {rate:g}/s: the plant's final status shows no run ({final})")
-        throughput = sim_s / wall_s
-        floor = (1.0 / rate) / round_trip_s
+        part_s, part_samples = sim_duration_s / rounds, chained_samples // rounds
+        print(f"bench: lockstep at {rate:g}/s, {rounds} x (chained ping-pong of {part_samples} round trips, "
+              f"{part_s:g} simulated s of the loop)", file=sys.stderr, flush=True)
+        pairs = []
+        for index in range(1, rounds + 1):
+            chained = pingpong(env, log_root / f"pingpong_chained_{rate:g}_{index}", "chained", samples=part_samples)
+            round_trip_s = float(np.mean(chained["round_trips_ns"])) * 1e-9
+            final = closed_loop(env, log_root / f"lockstep_{rate:g}_{index}", "lockstep", rate, part_s)
+            # The whole run, from the plant's final status: simulated time over the wall time since its start.
+            sim_s, wall_s = float(final["sim_time_s"]), float(final["run_wall_s"])
+            if not (sim_s > 0 and wall_s > 0):
+                raise RuntimeError(f"lockstep at {rate:g}/s: the plant's final status shows no run ({final})")
+            pairs.append({"round_trip_s": round_trip_s, "sim_s": sim_s, "wall_s": wall_s, "final": final,
+                          "floor_ratio": ((1.0 / rate) / round_trip_s) / (sim_s / wall_s)})
+        sim_s, wall_s = sum(p["sim_s"] for p in pairs), sum(p["wall_s"] for p in pairs)
+        round_trip_s = float(np.median([p["round_trip_s"] for p in pairs]))
+        finals = [p["final"] for p in pairs]
         rows.append({
-            "rate_hz": rate, "sim_duration_s": sim_duration_s, "run_wall_s": wall_s,
-            "throughput": throughput, "floor_throughput": floor, "floor_ratio": floor / throughput,
-            "round_trip_mean_ms": round_trip_s * 1e3, "samples": int(final["samples"]),
-            "latency_ms": {q: float(final[f"latency_{q}_ms"]) for q in ("p50", "p99", "max")},
-            "deadline_misses": int(final["deadline_misses"]),
+            "rate_hz": rate, "sim_duration_s": sim_s, "run_wall_s": wall_s, "rounds": rounds,
+            "throughput": sim_s / wall_s, "floor_throughput": (1.0 / rate) / round_trip_s,
+            "floor_ratio": float(np.median([p["floor_ratio"] for p in pairs])),
+            "round_ratios": [p["floor_ratio"] for p in pairs],
+            "round_trip_mean_ms": round_trip_s * 1e3, "cycle_ms": wall_s / (sim_s * rate) * 1e3,
+            **{f"{name}_ms": {q: float(np.median([float(f[f"{name}_{q}_ms"]) for f in finals])) for q in ("p50", "p99")}
+               for name in ("latency", "turnaround")},
+            "deadline_misses": sum(int(f["deadline_misses"]) for f in finals),
         })
     return rows
 
@@ -467,19 +425,26 @@ def report(command: str, machine: dict, quick: bool, latency, share, lockstep, r
         lines += ["## 2. Lockstep throughput beside its floor", "",
                   "The paper's case (delta(0) = 0.2 rad, b = 0.3) in lockstep mode: the plant publishes /clock and "
                   "sample k and advances only when the command for k has arrived. Throughput = simulated s per "
-                  "wall s over the whole run, from the plant's final diagnostics (`sim_time_s` / `run_wall_s`, "
-                  "wall time since its start). "
-                  "Floor = what the transport alone allows: period / mean round trip of a chained ping-pong "
-                  "(each pong sends the next ping at once), measured right before each run.", "",
+                  "wall s, from the plants' final diagnostics (`sim_time_s` / `run_wall_s`, wall time since each "
+                  "start), over all rounds. Floor = what the transport alone allows: period / mean round trip of "
+                  "a chained ping-pong (each pong sends the next ping at once). Each rate runs as "
+                  f"{lockstep[0]['rounds']} alternating pairs (chained ping-pong, then a lockstep run); the "
+                  "floor / throughput ratio is the median of the pairs' ratios, the rounds' in brackets. A cycle "
+                  "(wall time per sample) is the loop latency (measurement out to command in, the controller's "
+                  "work included) plus the plant's turnaround (command in to the next measurement out: RK4 over "
+                  "the period, /clock, the measurement); the floor's cycle is one bare round trip.", "",
                   "| rate (/s) | simulated s / wall s | throughput (x real time) | floor (x real time) "
-                  "| floor / throughput | ping-pong round trip mean (ms) | loop latency p50 / p99 (ms) | misses |",
-                  "|---:|---:|---:|---:|---:|---:|---|---:|"]
+                  "| floor / throughput (rounds) | cycle (ms) | ping-pong round trip (ms) | loop latency p50 / p99 "
+                  "(ms) | plant turnaround p50 / p99 (ms) | misses |",
+                  "|---:|---:|---:|---:|---|---:|---:|---|---|---:|"]
         for row in lockstep:
+            rounds = ", ".join(f"{ratio:.2f}" for ratio in row["round_ratios"])
             lines.append(f"| {row['rate_hz']:g} | {row['sim_duration_s']:g} / {row['run_wall_s']:.2f} | "
-                         f"{row['throughput']:.1f} | "
-                         f"{row['floor_throughput']:.1f} | {row['floor_ratio']:.2f} | "
-                         f"{row['round_trip_mean_ms']:.3f} | {row['latency_ms']['p50']:.3f} / "
-                         f"{row['latency_ms']['p99']:.3f} | {row['deadline_misses']} |")
+                         f"{row['throughput']:.1f} | {row['floor_throughput']:.1f} | **{row['floor_ratio']:.2f}** "
+                         f"({rounds}) | {row['cycle_ms']:.3f} | {row['round_trip_mean_ms']:.3f} | "
+                         f"{row['latency_ms']['p50']:.3f} / {row['latency_ms']['p99']:.3f} | "
+                         f"{row['turnaround_ms']['p50']:.3f} / {row['turnaround_ms']['p99']:.3f} | "
+                         f"{row['deadline_misses']} |")
         at100 = [row for row in lockstep if row["rate_hz"] == 100.0]
         if at100:
             row = at100[0]
@@ -550,17 +515,12 @@ def main(argv=None) -> int:
     machine["executor"] = executor_name()
     duration_s = 6.0 if args.quick else 30.0
     latency = share = lockstep = roa_result = None
-    diagnostics = PlantDiagnostics(args.domain_id) if {"latency", "lockstep"} & set(args.only) else None
-    try:
-        if "latency" in args.only:
-            latency = bench_latency(env, log_root, diagnostics, args.rates, duration_s, LATENCY_ROUNDS)
-            share = bench_controller_share(env, log_root, 100.0, 4, 3.0 if args.quick else 15.0)
-        if "lockstep" in args.only:
-            lockstep = bench_lockstep(env, log_root, diagnostics, [50.0, 100.0], 30.0 if args.quick else 60.0,
-                                      500 if args.quick else 5000)
-    finally:
-        if diagnostics is not None:
-            diagnostics.close()
+    if "latency" in args.only:
+        latency = bench_latency(env, log_root, args.rates, duration_s, LATENCY_ROUNDS)
+        share = bench_controller_share(env, log_root, 100.0, 4, 3.0 if args.quick else 15.0)
+    if "lockstep" in args.only:
+        lockstep = bench_lockstep(env, log_root, [50.0, 100.0], 30.0 if args.quick else 60.0,
+                                  600 if args.quick else 6000, LATENCY_ROUNDS)
     if "roa" in args.only:
         roa_result = bench_roa(40 if args.quick else 200)
     machine["load_average_at_end"] = os.getloadavg()

@@ -80,13 +80,16 @@ class LoopStats:
     late the reporting timer fired after the instant. A deadline miss: a
     reporting instant reached with the previous sample unanswered (lockstep: a
     timeout). A skipped report: a reporting instant that got no measurement
-    because the timer fell more than a period behind.
+    because the timer fell more than a period behind. Turnaround (lockstep):
+    the plant's own share of each cycle, from a command's arrival to the next
+    measurement's publication (physics, /clock, the measurement itself).
     """
 
     def __init__(self):
         # Ranges: loop latency 0..100 ms, timer jitter -10..90 ms (a timer fires late, rarely early).
         self.latency = TimingDistribution(0, 100_000_000)
         self.jitter = TimingDistribution(-10_000_000, 90_000_000)
+        self.turnaround = TimingDistribution(0, 100_000_000)
         self._sent_wall_ns: OrderedDict[int, int] = OrderedDict()
         self.last_sent_stamp_ns: int | None = None
         self.last_sent_wall_ns: int | None = None
@@ -153,7 +156,8 @@ class LoopStats:
             "duplicates": self.duplicates, "deadline_misses": self.deadline_misses,
             "command_timeouts": self.command_timeouts, "skipped_reports": self.skipped_reports,
         }
-        for name, distribution in (("latency", self.latency), ("jitter", self.jitter)):
+        for name, distribution in (("latency", self.latency), ("jitter", self.jitter),
+                                   ("turnaround", self.turnaround)):
             if distribution.count:
                 p50, p99 = distribution.percentiles_ns((50, 99))
                 out[f"{name}_p50_ms"] = p50 * 1e-6

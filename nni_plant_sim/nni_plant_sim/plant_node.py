@@ -22,6 +22,7 @@ Topics and QoS: :mod:`nni_msgs_adapter.contract`.
 
 from __future__ import annotations
 
+import json
 import math
 import sys
 
@@ -40,6 +41,8 @@ from nni_plant_sim.model import SmibParams, electrical_power, invariant_set_boun
 from nni_plant_sim.scenarios import PRE_FAULT, SCENARIOS, StartingAt
 
 DEFAULTS = load_defaults("nni_plant_sim", "plant.yaml", "plant")
+#: Prefix of the JSON line with the final diagnostics values printed at exit.
+SUMMARY_PREFIX = "plant_node summary: "
 
 PARAMETERS = (
     Spec("mode", DEFAULTS["mode"], "Time mode: realtime (wall clock) or lockstep (simulated /clock).",
@@ -381,6 +384,8 @@ class PlantNode(Node):
             self._stats.answered(stamp_ns, arrival_ns)
             self._battery_power_pu = power
             self._complete_sample()
+            if not self.done.done():
+                self._stats.turnaround.add(self._stats.last_sent_wall_ns - arrival_ns)
             return
         if not self._started:
             return
@@ -400,7 +405,8 @@ class PlantNode(Node):
 
     # --- diagnostics ---------------------------------------------------------------------
 
-    def _publish_diagnostics(self) -> None:
+    def _publish_diagnostics(self) -> dict:
+        """Publish the plant's status; returns its values."""
         level, message = (b"\x00", "running") if self._started else (b"\x01", "waiting for subscribers")
         run_wall_s = (self._now_ns() - self._t0_ns) * 1e-9 if self._started else 0.0
         values = {"mode": self._values["mode"], "sim_time_s": self._t_s, "run_wall_s": run_wall_s,
@@ -408,10 +414,11 @@ class PlantNode(Node):
                   "battery_power_pu": self._battery_power_pu, **self._stats.summary()}
         self._diag_pub.publish(contract.diagnostics_message(
             self._now_ns(), "plant", self.get_fully_qualified_name(), level, message, values))
+        return values
 
     def close(self) -> None:
-        """Final diagnostics before the node goes (SIGINT/SIGTERM or end of run)."""
-        self._publish_diagnostics()
+        """Final diagnostics before the node goes (SIGINT/SIGTERM or end of run), also printed as one JSON line."""
+        print(SUMMARY_PREFIX + json.dumps(self._publish_diagnostics()), flush=True)
 
 
 def main(args=None) -> int:
