@@ -136,9 +136,6 @@ def test_invariant_set_level_out_of_range_is_refused(paper_plant):
 # --- swing equation and W -----------------------------------------------------------------------
 
 
-# quad is asked for more than it can always certify (1e-14) and says so on some
-# examples; the assertion below checks the accuracy that matters either way.
-@pytest.mark.filterwarnings("ignore::scipy.integrate.IntegrationWarning")
 @ALGEBRA
 @given(plant=plants, d=st.floats(-3.0, 3.0))
 def test_restoring_energy_is_the_integral_of_g(plant, d):
