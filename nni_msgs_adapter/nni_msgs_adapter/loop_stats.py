@@ -149,7 +149,7 @@ class LoopStats:
         return float("inf") if self.last_answer_wall_ns is None else (now_ns - self.last_answer_wall_ns) * 1e-9
 
     def summary(self) -> dict:
-        """Counters and latency/jitter percentiles in ms, for diagnostics."""
+        """Counters and latency / jitter / turnaround percentiles in ms, for diagnostics."""
         out = {
             "measurements": self.measurements, "commands": self.latency.count, "late": self.late,
             "rejected": self.rejected,

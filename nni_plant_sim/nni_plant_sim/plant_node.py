@@ -128,6 +128,7 @@ class PlantNode(Node):
         self._battery_power_pu = 0.0
         self._sample = 0               # index of the next (lockstep: current) reporting instant
         self._started = False
+        self._finished_ns = None        # wall time at the end of a run of duration_s
         self._subscribers_seen_ns = None
         self._awaiting_stamp_ns = None  # lockstep: stamp of the sample whose command we wait for
         self._ahead = None              # realtime: (t_s, x) before integrating ahead to the next instant
@@ -266,6 +267,7 @@ class PlantNode(Node):
         for timer in (self._tick_timer, self._watchdog):
             if timer is not None:
                 timer.cancel()
+        self._finished_ns = self._now_ns()
         self._publish_diagnostics()
         if not self.done.done():
             self.done.set_result(True)
@@ -408,7 +410,7 @@ class PlantNode(Node):
     def _publish_diagnostics(self) -> dict:
         """Publish the plant's status; returns its values."""
         level, message = (b"\x00", "running") if self._started else (b"\x01", "waiting for subscribers")
-        run_wall_s = (self._now_ns() - self._t0_ns) * 1e-9 if self._started else 0.0
+        run_wall_s = ((self._finished_ns or self._now_ns()) - self._t0_ns) * 1e-9 if self._started else 0.0
         values = {"mode": self._values["mode"], "sim_time_s": self._t_s, "run_wall_s": run_wall_s,
                   "samples": self._sample,
                   "battery_power_pu": self._battery_power_pu, **self._stats.summary()}
