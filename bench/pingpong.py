@@ -53,7 +53,6 @@ class Ping(Node):
     def __init__(self, mode: str, rate_hz: float, duration_s: float, samples: int):
         super().__init__("pingpong_ping")
         self.mode, self.period_s, self.duration_s, self.samples = mode, 1.0 / rate_hz, duration_s, samples
-        self._period_ns = round(1e9 / rate_hz)
         self.round_trips_ns: list[int] = []
         self.deadline_misses = 0
         self.sent = 0
@@ -80,6 +79,8 @@ class Ping(Node):
         self._t0_ns = now
         if self.mode == "timed":
             self._tick_timer = self.create_timer(self.period_s, self._on_tick)
+            # Ideal instants on the timer's own grid (its period in whole ns), as the plant's.
+            self._period_ns = self._tick_timer.timer_period_ns
         self._send(now)
 
     def _send(self, instant_ns: int) -> None:
