@@ -21,7 +21,10 @@ Mapping (see README, "Topics"):
   battery_limit (pu, may be inf). Stamp = the measurement it answers.
 * ``plant/invariant_set`` geometry_msgs/PolygonStamped, latched: boundary of the
   invariant set Omega in the (angle deviation rad, speed deviation rad/s) plane.
-* ``diagnostics`` diagnostic_msgs/DiagnosticArray: loop health and counters.
+* ``/diagnostics`` diagnostic_msgs/DiagnosticArray: loop health and counters. Absolute, as ROS
+  tools (diagnostic aggregator, rqt_robot_monitor) expect: one topic for every generator, the
+  generator's namespace in each status's name (``gen1/plant``; ``plant`` in the root namespace)
+  and its hardware_id (the node's fully qualified name, ``/gen1/plant``).
 * ``/clock`` rosgraph_msgs/Clock in lockstep mode (absolute: one simulated clock).
 * ``plant/start_fault`` std_srvs/Trigger service: start the fault scenario now.
 """
@@ -42,7 +45,7 @@ TOPIC_BATTERY_COMMAND = "battery/command"
 TOPIC_PLANT_STATE = "plant/state"
 TOPIC_CONTROLLER_STATE = "controller/state"
 TOPIC_INVARIANT_SET = "plant/invariant_set"
-TOPIC_DIAGNOSTICS = "diagnostics"
+TOPIC_DIAGNOSTICS = "/diagnostics"
 TOPIC_CLOCK = "/clock"
 SERVICE_START_FAULT = "plant/start_fault"
 
@@ -215,13 +218,26 @@ def invariant_set_message(stamp_ns: int, boundary) -> PolygonStamped:
 
 def diagnostics_message(stamp_ns: int, name: str, hardware_id: str, level: bytes, message: str,
                         values: dict) -> DiagnosticArray:
-    """One DiagnosticStatus in a DiagnosticArray; ``values`` become KeyValue strings."""
-    status = DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id)
+    """One DiagnosticStatus in a DiagnosticArray for ``/diagnostics``; ``values`` become KeyValue strings.
+
+    ``hardware_id`` is the reporting node's fully qualified name (``/gen1/plant``); its namespace
+    prefixes the status name (``gen1/plant``), so that the statuses of several generators on the
+    one absolute topic stay apart (:func:`split_status_name` reads it back).
+    """
+    namespace = hardware_id.rpartition("/")[0].strip("/")
+    status = DiagnosticStatus(level=level, name=f"{namespace}/{name}" if namespace else name, message=message,
+                              hardware_id=hardware_id)
     status.values = [KeyValue(key=key, value=_format_value(value)) for key, value in values.items()]
     msg = DiagnosticArray()
     msg.header.stamp = time_from_ns(stamp_ns)
     msg.status = [status]
     return msg
+
+
+def split_status_name(status_name: str) -> tuple[str, str]:
+    """``(namespace, name)`` of a status from :func:`diagnostics_message`: ``gen1/plant`` -> ``("/gen1", "plant")``."""
+    namespace, _, name = status_name.rpartition("/")
+    return (f"/{namespace}" if namespace else ""), name
 
 
 def diagnostic_values(msg: DiagnosticArray, name: str) -> dict | None:

@@ -2,21 +2,31 @@
 
 ``ros2 run nni_msgs_adapter mcap_logger --ros-args -p output_path:=run.mcap``
 
-Once a second (and at start) it looks at the ROS graph for topics whose last
-name component(s) match the contract (``pmu``, ``battery/command``, ...) under
-any namespace, plus ``/clock``, and subscribes to each in raw (serialized) form,
-so nothing is deserialised on the way to disk, with the contract's QoS and a
-history of ``contract.RECORDER_DEPTH`` (a logger that falls behind catches up
-instead of losing samples). Each message is written with log_time = receive
-time and publish_time = its header stamp (read from the first eight CDR bytes:
-every contract type starts with a builtin_interfaces/Time). The channel's
-``offered_qos_profiles`` are the QoS of the publishers seen on the graph, so
-``ros2 bag play`` offers the same QoS.
+Once a second (and at start) it looks at the ROS graph for topics that the contract's
+one matcher (:func:`recording.split_topic`) knows: ``pmu``, ``battery/command``, ... under
+any namespace, plus the absolute ``/clock`` and ``/diagnostics``; it subscribes to each in
+raw (serialized) form, so nothing is deserialised on the way to disk, with the contract's QoS
+and a history of ``contract.RECORDER_DEPTH`` (a logger that falls behind catches up instead of
+losing samples). Each message is written with log_time = receive time and publish_time = its
+header stamp (read from the first eight CDR bytes: every contract type starts with a
+builtin_interfaces/Time). rosbag2 records the DDS source timestamp there, from the message
+info; rclpy's EventsExecutor, which every node of the project spins, fails on a callback that
+asks for the message info (``SystemError: null argument to internal routine``, rclpy 7.1 of
+Jazzy, measured), so the stamp stands in for it. The channel's
+``offered_qos_profiles`` are the QoS of the publishers seen on the graph, so ``ros2 bag play``
+offers the same QoS.
 
-The writer closes a chunk and flushes the file every ``flush_period_s`` (default
-0.5 s): after SIGKILL the file is readable up to the last flush, so at most the
-last ``flush_period_s`` of messages are lost. SIGINT/SIGTERM finish the file
-(summary and indexes) and print the per-topic counts as one JSON line.
+``run_metadata`` (a JSON object, e.g. what ``nni-demo`` ran) is written at start as the MCAP
+metadata record ``nni_run``, each top-level key holding its value's JSON text. At the end the
+writer adds rosbag2's own metadata record (``ros2 bag info`` shows "ROS Distro: jazzy").
+
+The writer closes a chunk and flushes the file every ``flush_period_s`` (default 0.5 s): after
+SIGKILL the file is readable up to the last flush, so at most the last ``flush_period_s`` of
+messages are lost. SIGINT/SIGTERM finish the file (summary and indexes) and print the
+per-topic counts as one JSON line. If the file cannot be written any more (a full disk, its
+folder removed), the logger publishes an ERROR status on ``/diagnostics`` at once, stops, prints
+one line saying what happened and how many messages the file keeps, and exits 1; the file
+stays readable as an incomplete recording up to its last flush.
 """
 
 from __future__ import annotations
@@ -27,11 +37,14 @@ import sys
 from datetime import datetime
 from pathlib import Path
 
+from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
+from rclpy.task import Future
 
 from nni_msgs_adapter import contract
-from nni_msgs_adapter.mcap_io import OfferedQos, RecordingError, Ros2McapWriter, qos_profiles_yaml
+from nni_msgs_adapter.mcap_io import OfferedQos, RecordingError, Ros2McapWriter, WriteFailure, qos_profiles_yaml
 from nni_msgs_adapter.node_main import run_node
+from nni_msgs_adapter.recording import RUN_METADATA_NAME, split_topic
 from nni_msgs_adapter.ros_params import Spec, load_defaults, current_values, declare
 
 DEFAULTS = load_defaults("nni_msgs_adapter", "mcap_logger.yaml", "mcap_logger")
@@ -43,10 +56,15 @@ PARAMETERS = (
          0.01, 10.0, read_only=True),
     Spec("discovery_period_s", DEFAULTS["discovery_period_s"], "How often the graph is scanned for new topics, s.", 0.05, 60.0,
          read_only=True),
+    Spec("run_metadata", DEFAULTS["run_metadata"], "The run's parameters, a JSON object, written as the MCAP metadata "
+         f"record {RUN_METADATA_NAME!r} (each top-level key -> its JSON text); empty: none.", read_only=True),
 )
 
 #: Prefix of the JSON line with per-topic counts printed at exit.
 COUNTS_PREFIX = "mcap_logger counts: "
+#: Exit status of a logger that could not write its file to the end.
+EXIT_WRITE_FAILURE = 1
+
 
 _STAMP = struct.Struct("<iI")  # builtin_interfaces/Time in little-endian CDR
 
@@ -59,14 +77,23 @@ def header_stamp_ns(cdr: bytes) -> int:
     return sec * 1_000_000_000 + nanosec
 
 
-def contract_topic_of(topic: str) -> str | None:
-    """The contract topic a fully qualified name instantiates (``/gen1/pmu`` -> ``pmu``), or None."""
-    if topic == contract.TOPIC_CLOCK:
-        return topic
-    for name in contract.TOPICS:
-        if not name.startswith("/") and topic.endswith("/" + name):
-            return name
-    return None
+def run_metadata_record(text: str) -> dict[str, str] | None:
+    """The ``nni_run`` record for a ``run_metadata`` parameter: key -> JSON text; None if empty.
+
+    Raises
+    ------
+    ValueError
+        If the text is not a JSON object.
+    """
+    if not text.strip():
+        return None
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise ValueError(f"run_metadata is not JSON: {error}") from None
+    if not isinstance(value, dict):
+        raise ValueError(f"run_metadata must be a JSON object, not {type(value).__name__}")
+    return {key: json.dumps(item) for key, item in value.items()}
 
 
 class McapLogger(Node):
@@ -76,23 +103,41 @@ class McapLogger(Node):
         super().__init__("mcap_logger", **kwargs)
         declare(self, PARAMETERS)
         values = current_values(self, PARAMETERS)
+        metadata = run_metadata_record(values["run_metadata"])
         path = Path(values["output_path"] or datetime.now().strftime("nni_%Y%m%d_%H%M%S.mcap"))
         if not path.parent.is_dir():
             raise ValueError(f"output folder {path.parent} does not exist")
         self.path = path
-        self._writer = Ros2McapWriter(path, flush_period_s=values["flush_period_s"])
+        self.done = Future()
+        self._diag_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_DIAGNOSTICS))
+        self._writer = Ros2McapWriter(path, flush_period_s=values["flush_period_s"], on_failure=self._on_failure)
+        if metadata is not None:
+            self._writer.add_metadata(RUN_METADATA_NAME, metadata)
         self._recorded: dict[str, object] = {}
         self._scan_graph()
         self.create_timer(values["discovery_period_s"], self._scan_graph)
         self.get_logger().info(f"recording to {path}")
 
+    @property
+    def failure(self) -> WriteFailure | None:
+        """Why the file could not be written to the end, or None."""
+        return self._writer.failure
+
+    @property
+    def messages_in_file(self) -> int:
+        """Messages that reached the file (flushed) so far."""
+        return self._writer.flushed
+
     def _scan_graph(self) -> None:
+        if self.failure is not None:
+            return
         for topic, types in self.get_topic_names_and_types():
             if topic in self._recorded:
                 continue
-            name = contract_topic_of(topic)
-            if name is None:
+            split = split_topic(topic)
+            if split is None:
                 continue
+            name = split[1]
             type_name = contract.TOPICS[name][0]
             if type_name not in types:
                 continue
@@ -105,6 +150,8 @@ class McapLogger(Node):
                 self.get_logger().error(f"not recording {topic}: {exc}")
                 self._recorded[topic] = None
                 continue
+            except WriteFailure:
+                return
             msg_class, _, qos = contract.recorder_endpoint(name)
             self._recorded[topic] = self.create_subscription(
                 msg_class, topic, self._writer_for(channel), qos, raw=True)
@@ -114,20 +161,47 @@ class McapLogger(Node):
         writer = self._writer
 
         def write(cdr: bytes) -> None:
-            writer.write(channel, cdr, clock.now().nanoseconds, header_stamp_ns(cdr))
+            if writer.failure is not None:
+                return  # reported once, at the failure; the node is stopping
+            try:
+                writer.write(channel, cdr, clock.now().nanoseconds, header_stamp_ns(cdr))
+            except WriteFailure:
+                pass  # on_failure has reported it
 
         return write
 
+    def _on_failure(self, failure: WriteFailure) -> None:
+        """First write failure (any thread): ERROR on /diagnostics at once, then stop the node."""
+        self._diag_pub.publish(contract.diagnostics_message(
+            self.get_clock().now().nanoseconds, "mcap_logger", self.get_fully_qualified_name(),
+            DiagnosticStatus.ERROR, str(failure), {"path": str(self.path), "messages_in_file": self.messages_in_file}))
+        self.get_logger().error(str(failure))
+        if not self.done.done():
+            self.done.set_result(False)
+
     def close(self) -> None:
-        """Finish the file (summary, indexes) and print the per-topic counts."""
+        """Finish the file (summary, indexes) and print the per-topic counts; after a failure only close it."""
         self._writer.close()
-        counts = self._writer.counts
-        print(COUNTS_PREFIX + json.dumps({"path": str(self.path), "counts": counts}), flush=True)
+        if self.failure is None:
+            print(COUNTS_PREFIX + json.dumps({"path": str(self.path), "counts": self._writer.counts}), flush=True)
 
 
 def main(args=None) -> int:
-    """``ros2 run nni_msgs_adapter mcap_logger``."""
-    return run_node(McapLogger, args, prog="mcap_logger")
+    """``ros2 run nni_msgs_adapter mcap_logger``: 0 when the file was finished, 1 after a write failure."""
+    loggers = []
+
+    def make_logger() -> McapLogger:
+        loggers.append(McapLogger())
+        return loggers[-1]
+
+    status = run_node(make_logger, args, prog="mcap_logger")
+    if status == 0 and loggers and loggers[0].failure is not None:
+        logger = loggers[0]
+        kept = (f"{logger.path} is incomplete: it keeps the {logger.messages_in_file} messages flushed before it"
+                if logger.messages_in_file else "nothing recorded is kept")
+        print(f"mcap_logger: error: {logger.failure}; {kept}", file=sys.stderr, flush=True)
+        return EXIT_WRITE_FAILURE
+    return status
 
 
 if __name__ == "__main__":

@@ -84,7 +84,7 @@ class Ros2McapWriter:
         if not flush_period_s > 0:
             raise ValueError(f"flush_period_s must be positive, not {flush_period_s}")
         self.path = Path(path)
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()  # re-entrant: on_failure may ask for counts
         self._on_failure = on_failure
         self.failure: WriteFailure | None = None
         self._file = self.path.open("wb")
@@ -96,6 +96,7 @@ class Ros2McapWriter:
         self._channels: dict[int, tuple[str, str, str, str]] = {}  # id -> (topic, type, QoS YAML, hash)
         self._channel_ids: dict[str, int] = {}  # topic -> channel id
         self._counts: dict[str, int] = {}
+        self._flushed = 0  # messages in the file as of the last successful flush
         self._log_time_range: tuple[int, int] | None = None
         self._closed = False
         self._stop_flushing = threading.Event()
@@ -118,6 +119,12 @@ class Ros2McapWriter:
         """Messages written so far per topic (a copy)."""
         with self._lock:
             return dict(self._counts)
+
+    @property
+    def flushed(self) -> int:
+        """Messages known to be in the file: those written before the last successful flush."""
+        with self._lock:
+            return self._flushed
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """Write a Metadata record now (outside any chunk, flushed: a killed file keeps it).
@@ -252,6 +259,7 @@ class Ros2McapWriter:
         })
         self._writer.finish()
         self._file.flush()
+        self._flushed = sum(self._counts.values())
 
     def _rosbag2_metadata_yaml(self) -> str:
         """The bag metadata rosbag2 (version 9) stores in ``serialized_metadata``."""
@@ -310,7 +318,9 @@ class Ros2McapWriter:
         except FileNotFoundError:
             on_disk = None
         if on_disk is None or (on_disk.st_dev, on_disk.st_ino) != (self._identity.st_dev, self._identity.st_ino):
+            self._flushed = 0
             raise OSError(0, f"the file was removed or replaced while recording (is {self.path.parent} still there?)")
+        self._flushed = sum(self._counts.values())
 
     def _flush_periodically(self, period_s: float) -> None:
         while not self._stop_flushing.wait(period_s):

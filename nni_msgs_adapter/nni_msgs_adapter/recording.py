@@ -8,10 +8,15 @@ read one way everywhere.
 
 No node and no ROS graph: messages are decoded with :func:`mcap_io.deserialize`
 (rclpy's serializer, imported on first use), so this works without rclpy.init.
+
+A recording also describes itself: the logger's ``run_metadata`` is the MCAP metadata record
+``nni_run`` (each top-level key -> its JSON text), read back by :func:`run_metadata`. Recordings
+made before it existed have none; what only needs the states reads them all the same.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -19,7 +24,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nni_msgs_adapter import contract
-from nni_msgs_adapter.mcap_io import RecordedMessage, RecordingError, deserialize, message_class, read_messages
+from nni_msgs_adapter.mcap_io import (
+    RecordedMessage, Recording, RecordingError, deserialize, message_class, read_recording,
+)
+
+#: Name of the MCAP metadata record that holds the run's parameters (the logger's ``run_metadata``).
+RUN_METADATA_NAME = "nni_run"
 
 #: Contract topics published once per sample (pmu, command, states, /clock).
 SAMPLE_TOPICS = (contract.TOPIC_PMU, contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_PLANT_STATE,
@@ -32,15 +42,35 @@ _RELATIVE_TOPICS = sorted((name for name in contract.TOPICS if not name.startswi
 def split_topic(topic: str) -> tuple[str, str] | None:
     """``(namespace, contract topic)`` of a fully qualified name, or None if outside the contract.
 
-    ``/gen1/plant/state`` -> ``("/gen1", "plant/state")``, ``/pmu`` -> ``("", "pmu")``,
-    ``/clock`` -> ``("", "/clock")`` (absolute in the contract).
+    The one matcher of topic names (the logger records what it matches, readers read it):
+    ``/gen1/plant/state`` -> ``("/gen1", "plant/state")``, ``/pmu`` -> ``("", "pmu")``;
+    the contract's absolute names match only themselves: ``/clock`` -> ``("", "/clock")``,
+    ``/diagnostics`` -> ``("", "/diagnostics")`` (whose statuses name their generator).
     """
-    if topic == contract.TOPIC_CLOCK:
+    if topic in contract.TOPICS:
         return "", topic
     for name in _RELATIVE_TOPICS:
         if topic.endswith("/" + name):
             return topic[: -len(name) - 1], name
     return None
+
+
+def run_metadata(recording: Recording) -> dict | None:
+    """The run's parameters (the ``nni_run`` record, values decoded from JSON), or None if not recorded.
+
+    Raises
+    ------
+    RecordingError
+        If a value of the record is not JSON.
+    """
+    record = recording.metadata.get(RUN_METADATA_NAME)
+    if record is None:
+        return None
+    try:
+        return {key: json.loads(text) for key, text in record.items()}
+    except json.JSONDecodeError as error:
+        raise RecordingError(f"{recording.path}: metadata {RUN_METADATA_NAME!r} holds a value that is not JSON: "
+                             f"{error}") from None
 
 
 @dataclass(frozen=True)
@@ -67,6 +97,9 @@ class GeneratorRun:
         from the last ``plant/invariant_set``; None if not recorded.
     diagnostics : dict of str to str
         Key/values of the plant's last ``diagnostics`` status (empty if none was recorded).
+    skipped : tuple of str
+        One line per sample left out because its message broke the contract (a non-finite
+        true state, for example): reported, the rest of the run still read.
     """
 
     namespace: str
@@ -77,6 +110,7 @@ class GeneratorRun:
     signals: dict = field(default_factory=dict)
     omega_boundary: np.ndarray | None = None
     diagnostics: dict = field(default_factory=dict)
+    skipped: tuple = ()
 
     @property
     def t_s(self) -> np.ndarray:
@@ -107,6 +141,7 @@ class _Collected:
     signals: dict = field(default_factory=dict)
     omega_boundary: np.ndarray | None = None
     diagnostics: dict = field(default_factory=dict)
+    skipped: list = field(default_factory=list)
 
 
 def read_generator_runs(path: str | os.PathLike[str]) -> dict[str, GeneratorRun]:
@@ -129,9 +164,15 @@ def read_generator_runs(path: str | os.PathLike[str]) -> dict[str, GeneratorRun]
         contract gives its topic, a contract message is malformed, or no namespace has
         ``plant/state``.
     """
+    return generator_runs(read_recording(path))
+
+
+def generator_runs(recording: Recording) -> dict[str, GeneratorRun]:
+    """Every generator of a recording already read (:func:`mcap_io.read_recording`); as :func:`read_generator_runs`."""
+    path = recording.path
     collected: dict[str, _Collected] = {}
     checked_topics: set[str] = set()
-    for record in read_messages(path):
+    for record in recording.messages:
         if record.topic not in checked_topics:
             check_message_type(path, record)
             checked_topics.add(record.topic)
@@ -139,10 +180,18 @@ def read_generator_runs(path: str | os.PathLike[str]) -> dict[str, GeneratorRun]
         if split is None or split[1] == contract.TOPIC_CLOCK:
             continue
         namespace, name = split
-        run = collected.setdefault(namespace, _Collected())
         try:
-            _collect(run, name, deserialize(record.type_name, record.cdr_bytes))
-        except (contract.ContractError, RecordingError) as error:
+            msg = deserialize(record.type_name, record.cdr_bytes)
+            if name == contract.TOPIC_DIAGNOSTICS:
+                _collect_diagnostics(collected, msg)
+            else:
+                _collect(collected.setdefault(namespace, _Collected()), name, msg)
+        except contract.ContractError as error:
+            if name not in SAMPLE_TOPICS:
+                raise RecordingError(f"{path}: malformed message on {record.topic}: {error}") from None
+            collected.setdefault(namespace, _Collected()).skipped.append(
+                f"{record.topic} at log time {record.log_time_ns} ns: {error}")
+        except RecordingError as error:
             raise RecordingError(f"{path}: malformed message on {record.topic}: {error}") from None
     runs = {ns: _generator_run(ns, run) for ns, run in sorted(collected.items()) if run.states}
     check_has_plant_state(path, [ns + "/" + contract.TOPIC_PLANT_STATE for ns in runs])
@@ -197,10 +246,14 @@ def _collect(run: _Collected, name: str, msg) -> None:
         run.signals[stamp_ns] = values
     elif name == contract.TOPIC_INVARIANT_SET:
         run.omega_boundary = np.array([(p.x, p.y) for p in msg.polygon.points], dtype=np.float64).reshape(-1, 2)
-    elif name == contract.TOPIC_DIAGNOSTICS:
-        values = contract.diagnostic_values(msg, "plant")
-        if values is not None:
-            run.diagnostics = values
+
+
+def _collect_diagnostics(collected: dict, msg) -> None:
+    """The plant statuses of a ``/diagnostics`` message, each to the generator its name gives."""
+    for status in msg.status:
+        namespace, name = contract.split_status_name(status.name)
+        if name == "plant":
+            collected.setdefault(namespace, _Collected()).diagnostics = {kv.key: kv.value for kv in status.values}
 
 
 def _generator_run(namespace: str, run: _Collected) -> GeneratorRun:
@@ -211,4 +264,4 @@ def _generator_run(namespace: str, run: _Collected) -> GeneratorRun:
                for name in contract.CONTROLLER_SIGNALS}
     boundary = run.omega_boundary if run.omega_boundary is not None and len(run.omega_boundary) >= 2 else None
     return GeneratorRun(namespace, stamps, values[:, 0], values[:, 1], values[:, 2], signals, boundary,
-                        run.diagnostics)
+                        run.diagnostics, tuple(run.skipped))
