@@ -117,10 +117,16 @@ def test_sigkill_keeps_every_message_up_to_the_last_flush(tmp_path):
           f"(received {max(lost_times_s, default=0.0):.3f} s or less before the kill; bound {bound_s} s)")
     assert all(age_s <= bound_s for age_s in lost_times_s), lost_times_s
     assert len(lost_times_s) <= math.ceil(bound_s * RATE_HZ)
-    # The recovered part is a usable recording: it converts for the viewer.
-    view = subprocess.run([str(NNI_REPLAY), str(path), "--rrd", str(tmp_path / "killed.rrd")],
+    # The recovered part is a usable recording, said to be partial: refused for the viewer unless
+    # asked for, then converted with a warning that says how much it holds.
+    refused = subprocess.run([str(NNI_REPLAY), str(path), "--rrd", str(tmp_path / "killed.rrd")],
+                             capture_output=True, text=True, timeout=60)
+    assert refused.returncode == 2 and "incomplete recording" in refused.stderr, refused.stderr
+    assert not (tmp_path / "killed.rrd").exists()
+    view = subprocess.run([str(NNI_REPLAY), str(path), "--rrd", str(tmp_path / "killed.rrd"), "--allow-partial"],
                           capture_output=True, text=True, timeout=60)
     assert view.returncode == 0, view.stderr
+    assert "incomplete recording" in view.stderr
 
 
 # --------------------------------------------------------------------------------------------

@@ -17,7 +17,9 @@ from nni_msgs_adapter.mcap_profile import (
     MESSAGE_ENCODING, PROFILE, SCHEMA_ENCODING, RecordingError, deserialize, message_class, message_definition,
     serialize, type_hash,
 )
-from nni_msgs_adapter.mcap_qos import QOS_METADATA_KEY, OfferedQos, parse_qos_profiles_yaml, qos_profiles_yaml
+from nni_msgs_adapter.mcap_qos import (
+    QOS_METADATA_KEY, OfferedQos, describe_qos, parse_qos_profiles_yaml, qos_profiles_yaml,
+)
 from nni_msgs_adapter.mcap_reader import (
     MAX_CHUNK_BYTES, MAX_RECORD_BYTES, MAX_TOTAL_BYTES, MCAP_MAGIC, RecordedMessage, Recording, read_messages,
     read_recording,
@@ -30,6 +32,6 @@ __all__ = [
     "MAX_CHUNK_BYTES", "MAX_RECORD_BYTES", "MAX_TOTAL_BYTES", "MCAP_MAGIC", "MESSAGE_ENCODING", "PROFILE",
     "QOS_METADATA_KEY", "ROS_DISTRO", "SCHEMA_ENCODING", "TYPE_HASH_METADATA_KEY",
     "OfferedQos", "RecordedMessage", "Recording", "RecordingError", "Ros2McapWriter", "WriteFailure",
-    "deserialize", "message_class", "message_definition", "parse_qos_profiles_yaml", "qos_profiles_yaml",
+    "describe_qos", "deserialize", "message_class", "message_definition", "parse_qos_profiles_yaml", "qos_profiles_yaml",
     "read_messages", "read_recording", "serialize", "type_hash",
 ]

@@ -39,6 +39,8 @@ _POLICY_VALUES = {
     for policy, names in _POLICY_NAMES.items()
 }
 _NS_PER_S = 1_000_000_000
+# rmw's RMW_DURATION_INFINITE (what the graph reports for "no deadline"), ns.
+_RMW_DURATION_INFINITE_NS = 2**63 - 1
 
 
 @dataclass(frozen=True)
@@ -167,6 +169,18 @@ def qos_profiles_yaml(profiles: Iterable[Any]) -> str:
             f"  avoid_ros_namespace_conventions: {str(qos.avoid_ros_namespace_conventions).lower()}",
         ]
     return "\n".join(lines) if lines else "[]"
+
+
+def describe_qos(profile: OfferedQos) -> str:
+    """One profile as words, the policies that decide matching first: ``reliable, volatile, keep_last 100``."""
+    words = [_policy_name("reliability", profile.reliability), _policy_name("durability", profile.durability)]
+    if _policy_name("history", profile.history) != "unknown":  # the graph does not show a publisher's history
+        words.append(f"{_policy_name('history', profile.history)} {profile.depth}")
+    if 0 < profile.deadline_ns < _RMW_DURATION_INFINITE_NS:
+        words.append(f"deadline {profile.deadline_ns * 1e-9:g} s")
+    if profile.liveliness:
+        words.append(f"liveliness {_policy_name('liveliness', profile.liveliness)}")
+    return ", ".join(words)
 
 
 def _parse_policy(policy: str, value: Any) -> int:

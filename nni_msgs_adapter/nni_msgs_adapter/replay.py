@@ -1,8 +1,9 @@
-"""``nni-replay`` (``ros2 run nni_msgs_adapter replay``): play a recording back, or view it in Rerun.
+"""``nni-replay`` (``ros2 run nni_msgs_adapter replay``): play a recording back, view it, describe it.
 
 ROS playback (the default)::
 
-    nni-replay run.mcap [--rate FACTOR] [--loop] [--start-offset S] [--clock] [--domain-id N]
+    nni-replay run.mcap [--rate FACTOR] [--loop] [--start-offset S] [--clock]
+                        [--wait-for-subscribers N] [--wait-topic TOPIC] [--domain-id N]
 
 republishes every recorded topic under its recorded (fully qualified) name with the
 QoS its publishers offered (the channel's ``offered_qos_profiles``), spacing the
@@ -14,6 +15,12 @@ S seconds of receive time (the latest latched messages before it still go out fi
 ``--clock`` also publishes ``/clock`` with the recording's time at 40 Hz, as
 ``ros2 bag play --clock`` does; a lockstep recording already holds its simulated
 ``/clock`` and refuses it.
+
+Playback starts once N subscribers (``--wait-for-subscribers``, default 1) listen to the
+replayed topics, each matched on every replayed topic it subscribes to (a subscriber of one
+topic counts; it is not asked to subscribe to all of them), and discovery has then settled
+(:mod:`replay_node`); ``--wait-topic TOPIC`` counts only the subscribers of that topic. ``0``
+starts at once, publishing whether anyone listens or not. While it waits it says so on its log.
 
 Rerun (no ROS graph; the node module is not even imported)::
 
@@ -27,18 +34,35 @@ Omega: the same samples, values and labels the live bridge
 (:mod:`nni_msgs_adapter.rerun_bridge`) shows. ``--rrd`` writes a file,
 ``--connect`` streams to a running viewer or server (``rerun``, ``rerun
 --serve-web``, default ``rerun+http://127.0.0.1:9876/proxy``), ``--spawn``
-starts a native viewer (needs a display). f0 is in no message; ``--f0-hz``
-(default 50 Hz) only labels the run parameters.
+starts a native viewer (needs a display). f0 comes from the recording's run
+parameters (the ``nni_run`` metadata); ``--f0-hz`` labels a recording made
+before they were recorded, and is refused for one that has them.
 
-Bad input (missing, non-MCAP or unrecoverably cut file, a recording without
-``plant/state``, an unknown message type or one the contract does not give
-the topic, a viewer that is not there, no display for ``--spawn``) prints one
-line and exits 2; the ``.rrd`` appears whole or not at all. A recording cut
-short (a killed logger) is read up to its last flush.
+Description and figure (no ROS graph)::
+
+    nni-replay run.mcap --info            # what `ros2 bag info` shows, the run's parameters, its verdicts
+    nni-replay run.mcap --plot out.png    # the run's figure (nni-simulate's, from the recorded samples)
+
+``--info`` prints the file, its size, ROS distro, duration, start and end, message count,
+each topic's type, count, serialization format and QoS, whether the file is complete, the
+run's parameters key by key and, per generator, the verdicts of
+:func:`nni_battery_controller.simulate.assess` key by key. Verdicts and ``--plot`` need the
+run's parameters (the plant's equilibrium and the controller's limit): a recording without
+them is refused for those with one line.
+
+A recording cut short (a killed logger, a full disk) is read up to its last flush and
+reported as incomplete (how many messages, up to which time): ``--info`` says so, every
+other use refuses it unless ``--allow-partial``. Bad input (missing, non-regular,
+non-MCAP, oversized or unrecoverably cut file, a recording without ``plant/state``, an
+unknown message type or one the contract does not give the topic, a viewer that is not
+there, no display for ``--spawn``) prints one line and exits 2; the ``.rrd`` appears whole
+or not at all.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import datetime
 import math
 import os
 import socket
@@ -53,16 +77,14 @@ from nni_msgs_adapter.cli_support import (
     CliError, OneLineParser, atomic_output, finite_float, positive_float, run_cli, writable_output,
 )
 from nni_msgs_adapter.mcap_io import (
-    OfferedQos, RecordedMessage, RecordingError, parse_qos_profiles_yaml, read_messages,
+    OfferedQos, RecordedMessage, Recording, RecordingError, parse_qos_profiles_yaml, read_recording,
 )
 from nni_msgs_adapter.recording import (
-    GeneratorRun, check_has_plant_state, check_message_type, read_generator_runs, split_topic,
+    GeneratorRun, check_has_plant_state, check_message_type, generator_runs, run_metadata, split_topic,
 )
 
 PROG = "nni-replay"
 APP_ID = "nni_replay"
-#: Nominal frequency, Hz: no contract message carries it; the paper's value, as the live bridge's default.
-DEFAULT_F0_HZ = 50.0
 #: Port of a Rerun viewer's gRPC server when a rerun+http URL names none (Rerun's default).
 DEFAULT_VIEWER_PORT = 9876
 #: Longest wait for a TCP connection to the viewer (--connect), s.
@@ -77,8 +99,12 @@ _TRANSIENT_LOCAL = 1
 
 _RERUN_URL_SCHEMES = ("rerun", "rerun+http", "rerun+https")
 
-_ROS_ONLY = {"rate": 1.0, "loop": False, "start_offset": 0.0, "clock": False, "wait_for_subscribers": 0,
-             "domain_id": None}
+#: Subscribers a playback waits for by default: someone must listen (see the module docstring).
+DEFAULT_WAIT_FOR_SUBSCRIBERS = 1
+
+_ROS_ONLY = {"rate": 1.0, "loop": False, "start_offset": 0.0, "clock": False,
+             "wait_for_subscribers": DEFAULT_WAIT_FOR_SUBSCRIBERS, "wait_topic": None, "domain_id": None}
+_RERUN_ONLY = {"f0_hz": None}
 
 
 # --------------------------------------------------------------------------------------------
@@ -185,7 +211,7 @@ def phase_bounds(runs) -> tuple | None:
     return ((lo[0] - margin[0], hi[0] + margin[0]), (lo[1] - margin[1], hi[1] + margin[1]))
 
 
-def log_recording(stream, runs, f0_hz: float = DEFAULT_F0_HZ) -> None:
+def log_recording(stream, runs, f0_hz: float) -> None:
     """Log generator runs on a Rerun stream (the blueprint is the caller's).
 
     The samples are those the controller answered, with the values the live bridge shows:
@@ -199,7 +225,7 @@ def log_recording(stream, runs, f0_hz: float = DEFAULT_F0_HZ) -> None:
     runs : iterable of GeneratorRun
         Runs with at least one answered sample (see :func:`viewable_runs`).
     f0_hz : float
-        Nominal frequency, Hz (run parameters only).
+        Nominal frequency, Hz (run parameters only; NaN when the recording does not say).
     """
     from nni_msgs_adapter.rerun_view import log_trajectory
 
@@ -222,11 +248,13 @@ def viewable_runs(path, runs: dict[str, GeneratorRun]) -> list[GeneratorRun]:
 
 def convert(args) -> int:
     """``--rrd`` / ``--connect`` / ``--spawn``: the recording in Rerun, with the blueprint."""
-    runs = viewable_runs(args.recording, read_generator_runs(args.recording))
+    recording = load(args)
+    runs = viewable_runs(args.recording, readable_runs(recording))
     if args.spawn:
         check_display()
     elif args.connect is not None:
         check_listening(args.connect)
+    f0_hz = view_f0_hz(args, run_metadata(recording))
     import rerun as rr
 
     from nni_msgs_adapter.rerun_view import blueprint, open_recording
@@ -237,7 +265,7 @@ def convert(args) -> int:
         stream = rr.RecordingStream(APP_ID)
         memory = stream.memory_recording()
         stream.send_blueprint(layout)
-        log_recording(stream, runs, args.f0_hz)
+        log_recording(stream, runs, f0_hz)
         stream.flush()
         with atomic_output(args.rrd, "wb") as handle:
             handle.write(memory.drain_as_bytes())
@@ -251,12 +279,167 @@ def convert(args) -> int:
             stream.send_blueprint(layout)
         else:
             stream, _ = open_recording(APP_ID, ("spawn", None), layout=layout)
-        log_recording(stream, runs, args.f0_hz)
+        log_recording(stream, runs, f0_hz)
         stream.flush(timeout_sec=VIEWER_FLUSH_TIMEOUT_S)
     except RuntimeError as error:
         raise CliError(f"Rerun viewer: {str(error).splitlines()[0]}") from None
     stream.disconnect()
     print(f"{PROG}: sent {len(runs)} generator run(s) to {args.connect or 'a spawned viewer'}")
+    return 0
+
+
+def warn(text: str) -> None:
+    """A warning line on stderr (the run goes on)."""
+    print(f"{PROG}: warning: {text}", file=sys.stderr, flush=True)
+
+
+def load(args, *, whole: bool = True) -> Recording:
+    """The recording, with what is wrong with it said: refused if cut short, unless ``--allow-partial`` (or not ``whole``)."""
+    recording = read_recording(args.recording)
+    if recording.duplicate_chunks:
+        warn(f"{args.recording}: {recording.duplicate_chunks} chunk(s) repeat an earlier one: each read once")
+    if not recording.complete:
+        if whole and not args.allow_partial:
+            raise CliError(f"{recording.incompleteness()}; refused: --allow-partial uses what it holds")
+        warn(recording.incompleteness())
+    return recording
+
+
+def readable_runs(recording: Recording) -> dict[str, GeneratorRun]:
+    """The recording's generator runs; each sample left out (a malformed message) said on stderr."""
+    runs = generator_runs(recording)
+    for run in runs.values():
+        for line in run.skipped:
+            warn(f"{recording.path}: sample left out: {line}")
+    return runs
+
+
+def view_f0_hz(args, parameters: dict | None) -> float:
+    """f0 for the Rerun view: the recorded plant's; ``--f0-hz`` only for a recording that does not say."""
+    recorded = (parameters or {}).get("plant", {}).get("f0_hz")
+    if recorded is not None:
+        if args.f0_hz is not None:
+            raise CliError(f"--f0-hz: {args.recording} records f0 = {recorded:g} Hz; "
+                           "the option only labels recordings without run parameters")
+        return float(recorded)
+    if args.f0_hz is None:
+        warn(f"{args.recording} holds no run parameters (no nni_run metadata): f0 is shown as NaN; "
+             "--f0-hz HZ labels it")
+        return math.nan
+    return args.f0_hz
+
+
+def require_parameters(recording: Recording, what: str) -> dict:
+    """The run's parameters, or CliError naming what needs them."""
+    parameters = run_metadata(recording)
+    if parameters is None:
+        raise CliError(f"{recording.path} holds no run parameters (no nni_run metadata: recorded before they were, "
+                       f"or by a logger started without run_metadata): {what} needs them")
+    return parameters
+
+
+def _dataclass_from(cls, values, section: str, path) -> object:
+    """``cls`` from the recorded section's values, every field present (none silently defaulted)."""
+    if not isinstance(values, dict):
+        raise CliError(f"{path}: run parameters hold no {section!r} section")
+    names = [f.name for f in dataclasses.fields(cls)]
+    missing = [name for name in names if name not in values]
+    if missing:
+        raise CliError(f"{path}: run parameters lack {section}.{', '.join(missing)}")
+    try:
+        return cls(**{name: float(values[name]) for name in names})
+    except (TypeError, ValueError) as error:
+        raise CliError(f"{path}: recorded {section} parameters are invalid: {error}") from None
+
+
+def trajectories(recording: Recording, runs: dict[str, GeneratorRun], parameters: dict) -> dict:
+    """Per namespace, the run as a sampled :class:`simulate.Trajectory` with the recorded parameters.
+
+    b is the one the controller reported in the run (``controller/state``), where it did.
+    """
+    from nni_battery_controller.law import ControllerParams
+    from nni_battery_controller.simulate import Trajectory
+    from nni_plant_sim.model import SmibParams
+
+    plant = _dataclass_from(SmibParams, parameters.get("plant"), "plant", recording.path)
+    ctrl = _dataclass_from(ControllerParams, parameters.get("controller"), "controller", recording.path)
+    out = {}
+    for namespace, run in runs.items():
+        b = run.battery_limit_pu
+        run_ctrl = ctrl if math.isnan(b) else replace(ctrl, battery_limit_pu=b)
+        out[namespace] = Trajectory(plant, run_ctrl, run.t_s, run.delta_rad, run.speed_rad_s, run.signals["x3"],
+                                    run.battery_power_pu, run.signals["w"], run.saturated, np.empty(0))
+    return out
+
+
+def _time_text(ns: int) -> str:
+    stamp = datetime.datetime.fromtimestamp(ns / 1e9, tz=datetime.timezone.utc)
+    return f"{stamp:%b %d %Y %H:%M:%S}.{ns % 1_000_000_000:09d} UTC ({ns // 1_000_000_000}.{ns % 1_000_000_000:09d})"
+
+
+def info_lines(recording: Recording, runs: dict[str, GeneratorRun], parameters: dict | None) -> list[str]:
+    """What ``--info`` prints: ``ros2 bag info``'s fields, completeness, parameters, verdicts."""
+    from nni_msgs_adapter.mcap_io import describe_qos
+
+    from nni_battery_controller.simulate import assess
+
+    messages = recording.messages
+    first, last = messages[0].log_time_ns, messages[-1].log_time_ns
+    rosbag2 = recording.metadata.get("rosbag2", {})
+    topics: dict[str, list] = {}
+    for record in messages:
+        topics.setdefault(record.topic, [record.type_name, 0, record.qos_yaml])[1] += 1
+    size = recording.path.stat().st_size
+    lines = [
+        f"Files:             {recording.path.name}",
+        f"Bag size:          {size / 1024:.1f} KiB",
+        "Storage id:        mcap",
+        f"ROS Distro:        {rosbag2.get('ROS_DISTRO', 'unknown')}",
+        f"Duration:          {(last - first) * 1e-9:.9f}s",
+        f"Start:             {_time_text(first)}",
+        f"End:               {_time_text(last)}",
+        f"Messages:          {len(messages)}",
+    ]
+    for index, (topic, (type_name, count, qos_yaml)) in enumerate(sorted(topics.items())):
+        qos = "; ".join(describe_qos(profile) for profile in parse_qos_profiles_yaml(qos_yaml)) or "not recorded"
+        lines.append(f"{'Topic information: ' if index == 0 else ' ' * 19}Topic: {topic} | Type: {type_name} | "
+                     f"Count: {count} | Serialization Format: cdr | QoS: {qos}")
+    lines.append(f"Complete:          {'yes' if recording.complete else 'no: ' + recording.incompleteness()}")
+    if parameters is None:
+        lines.append("Run parameters:    not recorded (no nni_run metadata): no verdicts")
+        return lines
+    lines.append("Run parameters:")
+    lines += [f"  {key}: {json_text(value)}" for key, value in parameters.items()]
+    for namespace, traj in trajectories(recording, runs, parameters).items():
+        lines.append(f"Verdicts{' of ' + namespace if namespace else ''}:")
+        lines += [f"  {key}: {json_text(value)}" for key, value in assess(traj).to_json().items()]
+    return lines
+
+
+def json_text(value) -> str:
+    """A parameter or verdict value as JSON text (``inf`` as JSON's Infinity, as recorded)."""
+    import json
+
+    return json.dumps(value)
+
+
+def describe(args) -> int:
+    """``--info``: print what the recording holds (complete or not: it says which)."""
+    recording = load(args, whole=False)
+    runs = readable_runs(recording)
+    print("\n".join(info_lines(recording, runs, run_metadata(recording))))
+    return 0
+
+
+def plot(args) -> int:
+    """``--plot OUT.png``: the run's figure, as ``nni-simulate --plot`` draws it, from the recorded samples."""
+    from nni_battery_controller.cli import plot_runs
+
+    recording = load(args)
+    runs = readable_runs(recording)
+    trajs = trajectories(recording, runs, require_parameters(recording, "--plot"))
+    plot_runs(list(trajs.values()), args.plot)
+    print(f"{PROG}: wrote {args.plot} ({len(trajs)} generator run(s))")
     return 0
 
 
@@ -321,16 +504,23 @@ def non_negative_float(text: str) -> float:
 
 def build_parser() -> OneLineParser:
     """The nni-replay command line."""
-    parser = OneLineParser(prog=PROG, description="Replay an NNI MCAP recording on ROS 2, or view it in Rerun.")
+    parser = OneLineParser(prog=PROG, description="Replay an NNI MCAP recording on ROS 2, view it in Rerun, "
+                                                  "describe it or draw its figure.")
     parser.add_argument("recording", help="MCAP file (ROS 2 profile), e.g. recordings/paper_b0.3.mcap")
+    parser.add_argument("--allow-partial", action="store_true",
+                        help="use a recording cut short (killed logger, full disk) up to its last flush "
+                             "(default: refused; --info always describes it)")
     ros = parser.add_argument_group("ROS playback (default)")
     ros.add_argument("--rate", type=positive_float, default=1.0, help="speed factor (2: twice as fast)")
     ros.add_argument("--loop", action="store_true", help="start again after the last message, until stopped")
     ros.add_argument("--start-offset", type=non_negative_float, default=0.0, metavar="S",
                      help="skip the first S seconds of the recording (latched topics still go out)")
     ros.add_argument("--clock", action="store_true", help="publish /clock with the recording's time at 40 Hz")
-    ros.add_argument("--wait-for-subscribers", type=int, default=0, metavar="N",
-                     help="start once every replayed topic has N subscribers (default 0: at once)")
+    ros.add_argument("--wait-for-subscribers", type=int, default=DEFAULT_WAIT_FOR_SUBSCRIBERS, metavar="N",
+                     help="start once N subscribers listen, each matched on every replayed topic it subscribes to, "
+                          f"and discovery has settled (default {DEFAULT_WAIT_FOR_SUBSCRIBERS}; 0: at once)")
+    ros.add_argument("--wait-topic", metavar="TOPIC", default=None,
+                     help="count only the subscribers of this replayed topic (default: of any replayed topic)")
     ros.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default: the environment's)")
     view = parser.add_argument_group("Rerun instead of ROS")
     sink = view.add_mutually_exclusive_group()
@@ -340,8 +530,15 @@ def build_parser() -> OneLineParser:
                       help="stream to a running viewer or server: its gRPC URL or port "
                            f"(default rerun+http://127.0.0.1:{DEFAULT_VIEWER_PORT}/proxy)")
     sink.add_argument("--spawn", action="store_true", help="start a native viewer and stream to it")
-    view.add_argument("--f0-hz", type=positive_float, default=DEFAULT_F0_HZ,
-                      help="nominal frequency for the run parameters, Hz (default 50: not in the recording)")
+    view.add_argument("--f0-hz", type=positive_float, default=None,
+                      help="nominal frequency, Hz, to label a recording without run parameters "
+                           "(refused when the recording has them: it says f0 itself)")
+    about = parser.add_argument_group("Describe or draw (no ROS, no Rerun)")
+    what = about.add_mutually_exclusive_group()
+    what.add_argument("--info", action="store_true",
+                      help="print what `ros2 bag info` shows, whether the file is complete, the run's parameters "
+                           "and its verdicts")
+    what.add_argument("--plot", type=writable_output, metavar="OUT.png", help="draw the run's figure")
     return parser
 
 
@@ -358,10 +555,22 @@ def split_ros_args(argv: list[str]) -> tuple[list[str], list[str]]:
     return own, ros
 
 
+def refuse_options(args, ros_args: list[str], defaults: dict, kind: str, use: str) -> None:
+    """CliError naming every option of ``defaults`` set away from its default (and ``--ros-args``) for ``use``."""
+    misplaced = ["--" + name.replace("_", "-") for name, default in defaults.items() if getattr(args, name) != default]
+    if ros_args:
+        misplaced.append("--ros-args")
+    if misplaced:
+        raise CliError(f"{', '.join(misplaced)}: {kind}, not for {use}")
+
+
 def play(args, ros_args: list[str]) -> int:
     """ROS playback: read and plan first (bad input never starts ROS), then spin the node."""
-    messages = list(read_messages(args.recording))
-    playback = plan_playback(args.recording, messages, args.start_offset)
+    recording = load(args)
+    playback = plan_playback(args.recording, list(recording.messages), args.start_offset)
+    if args.wait_topic is not None and args.wait_topic not in playback.topics:
+        raise CliError(f"--wait-topic {args.wait_topic}: not a topic of {args.recording} "
+                       f"(it holds {', '.join(sorted(playback.topics))})")
     if args.clock and contract.TOPIC_CLOCK in playback.topics:
         raise CliError(f"{args.recording} already holds {contract.TOPIC_CLOCK} (a lockstep run): "
                        "replay it without --clock")
@@ -373,7 +582,8 @@ def play(args, ros_args: list[str]) -> int:
     from nni_msgs_adapter.replay_node import ReplayNode
 
     return run_node(lambda: ReplayNode(playback, rate=args.rate, loop=args.loop, clock=args.clock,
-                                       wait_for_subscribers=args.wait_for_subscribers),
+                                       wait_for_subscribers=args.wait_for_subscribers,
+                                       wait_topic=args.wait_topic),
                     [PROG, *ros_args], prog=PROG)
 
 
@@ -386,12 +596,19 @@ def main(argv=None) -> int:
         args = parser.parse_args(own)
         if args.wait_for_subscribers < 0:
             raise CliError(f"--wait-for-subscribers must be >= 0, got {args.wait_for_subscribers}")
-        if args.rrd is not None or args.connect is not None or args.spawn:
-            misplaced = [name for name, default in _ROS_ONLY.items() if getattr(args, name) != default]
-            if misplaced or ros_args:
-                options = ", ".join("--" + name.replace("_", "-") for name in misplaced) or "--ros-args"
-                raise CliError(f"{options}: ROS playback options, not for --rrd/--connect/--spawn")
+        viewing = args.rrd is not None or args.connect is not None or args.spawn
+        describing = args.info or args.plot is not None
+        if viewing and describing:
+            raise CliError("--info/--plot: not with --rrd/--connect/--spawn (one output at a time)")
+        if viewing or describing:
+            refuse_options(args, ros_args, _ROS_ONLY, "ROS playback options",
+                           "--rrd/--connect/--spawn" if viewing else "--info/--plot")
+        if describing:
+            refuse_options(args, [], _RERUN_ONLY, "a Rerun option", "--info/--plot")
+            return describe(args) if args.info else plot(args)
+        if viewing:
             return convert(args)
+        refuse_options(args, [], _RERUN_ONLY, "a Rerun option", "ROS playback")
         return play(args, ros_args)
 
     return run_cli(body, PROG)
