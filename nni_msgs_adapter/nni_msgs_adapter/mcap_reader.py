@@ -272,11 +272,11 @@ class _Collector:
             self.duplicate_chunks += 1
             return
         self.chunk_keys.add(key)
-        self.decompressed_bytes += chunk.uncompressed_size
+        data = _decompressed(self.path, chunk)
+        self.decompressed_bytes += len(data)
         if self.decompressed_bytes > MAX_TOTAL_BYTES:
             raise RecordingError(f"{self.path}: more than {MAX_TOTAL_BYTES} bytes of messages once decompressed: "
                                  "refused (the limit bounds memory)")
-        data = _decompressed(self.path, chunk)
         for inner in breakup_chunk(replace(chunk, compression="", data=data), validate_crc=True):
             self.take(inner)
 
