@@ -25,7 +25,7 @@ SIGKILL the file is readable up to the last flush, so at most the last ``flush_p
 messages are lost. SIGINT/SIGTERM finish the file (summary and indexes) and print the
 per-topic counts as one JSON line. If the file cannot be written any more (a full disk, its
 folder removed), the logger publishes an ERROR status on ``/diagnostics`` at once, stops, prints
-one line saying what happened and how many messages the file keeps, and exits 1; the file
+one line saying what happened and how many messages the file keeps (read back), and exits 1; the file
 stays readable as an incomplete recording up to its last flush.
 """
 
@@ -42,7 +42,9 @@ from rclpy.node import Node
 from rclpy.task import Future
 
 from nni_msgs_adapter import contract
-from nni_msgs_adapter.mcap_io import OfferedQos, RecordingError, Ros2McapWriter, WriteFailure, qos_profiles_yaml
+from nni_msgs_adapter.mcap_io import (
+    OfferedQos, RecordingError, Ros2McapWriter, WriteFailure, qos_profiles_yaml, read_recording,
+)
 from nni_msgs_adapter.node_main import run_node
 from nni_msgs_adapter.recording import RUN_METADATA_NAME, split_topic
 from nni_msgs_adapter.ros_params import Spec, load_defaults, current_values, declare
@@ -123,10 +125,12 @@ class McapLogger(Node):
         """Why the file could not be written to the end, or None."""
         return self._writer.failure
 
-    @property
     def messages_in_file(self) -> int:
-        """Messages that reached the file (flushed) so far."""
-        return self._writer.flushed
+        """Messages the file holds now, read back (after a failure: what an incomplete file keeps)."""
+        try:
+            return len(read_recording(self.path).messages)
+        except RecordingError:
+            return 0
 
     def _scan_graph(self) -> None:
         if self.failure is not None:
@@ -174,8 +178,7 @@ class McapLogger(Node):
         """First write failure (any thread): ERROR on /diagnostics at once, then stop the node."""
         self._diag_pub.publish(contract.diagnostics_message(
             self.get_clock().now().nanoseconds, "mcap_logger", self.get_fully_qualified_name(),
-            DiagnosticStatus.ERROR, str(failure), {"path": str(self.path), "messages_in_file": self.messages_in_file}))
-        self.get_logger().error(str(failure))
+            DiagnosticStatus.ERROR, str(failure), {"path": str(self.path), "messages_flushed": self._writer.flushed}))
         if not self.done.done():
             self.done.set_result(False)
 
@@ -197,8 +200,9 @@ def main(args=None) -> int:
     status = run_node(make_logger, args, prog="mcap_logger")
     if status == 0 and loggers and loggers[0].failure is not None:
         logger = loggers[0]
-        kept = (f"{logger.path} is incomplete: it keeps the {logger.messages_in_file} messages flushed before it"
-                if logger.messages_in_file else "nothing recorded is kept")
+        kept_count = logger.messages_in_file()
+        kept = (f"{logger.path} is incomplete: it keeps the {kept_count} messages written before the failure"
+                if kept_count else "nothing recorded is kept")
         print(f"mcap_logger: error: {logger.failure}; {kept}", file=sys.stderr, flush=True)
         return EXIT_WRITE_FAILURE
     return status
