@@ -4,12 +4,16 @@
 (b) SIGINT and SIGTERM finish the file and the counts the logger prints are the file's;
 (c) one logger records generators in two namespaces into one file;
 (d) a replayed recording reaches a subscriber byte for byte, in order, with its timing;
-    --start-offset, --clock and --loop do what they say;
-(e) bad input to nni-replay and the logger: one line, non-zero exit, no traceback, no output.
+    --start-offset, --clock and --loop do what they say; by default it waits for a subscriber,
+    and one that takes a single topic is enough;
+(e) bad input to nni-replay and the logger: one line, non-zero exit, no traceback, no output;
+(f) a recording describes itself: the run's parameters (nni_run), rosbag2's metadata (ROS distro),
+    `nni-replay --info` and `--plot`; diagnostics on /diagnostics name their generator.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import signal
@@ -22,15 +26,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from mcap.reader import make_reader
 from mcap.writer import Writer
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 
 from nni_msgs_adapter import contract
+from nni_battery_controller.simulate import Outcome
 from nni_msgs_adapter.mcap_io import MCAP_MAGIC, Ros2McapWriter, deserialize, qos_profiles_yaml, read_messages
 from nni_msgs_adapter.mcap_logger import COUNTS_PREFIX, DEFAULTS as LOGGER_DEFAULTS
-from nni_msgs_adapter.recording import read_generator_runs
+from nni_msgs_adapter.recording import RUN_METADATA_NAME, read_generator_runs
 from rosproc import NodeProcess, Probe, fresh_domain_id, node_processes, ros_env
 
 pytestmark = pytest.mark.ros
@@ -195,6 +201,16 @@ def test_one_logger_records_both_namespaces(two_generators, signum):
         assert run.omega_boundary is not None
 
 
+def test_diagnostics_are_on_the_absolute_topic_and_name_their_generator(two_generators):
+    path, _, _ = two_generators[signal.SIGINT]
+    statuses = {(status.name, status.hardware_id)
+                for record in read_messages(path) if record.topic == contract.TOPIC_DIAGNOSTICS
+                for status in deserialize(record.type_name, record.cdr_bytes).status}
+    assert statuses == {(f"{ns[1:]}/{node}", f"{ns}/{node}") for ns in NAMESPACES for node in ("plant", "controller")}
+    for namespace, run in read_generator_runs(path).items():
+        assert int(run.diagnostics["samples"]) >= 0.9 * 2.0 * RATE_HZ, namespace
+
+
 # --------------------------------------------------------------------------------------------
 # (d) replay
 # --------------------------------------------------------------------------------------------
@@ -309,6 +325,142 @@ def test_replay_loop_repeats_the_recording_until_interrupted(tmp_path):
     repeated = states * (len(received) // SYNTHETIC_STATES + 1)
     assert [cdr for _, cdr in received] == repeated[: len(received)], "whole passes, back to back, in order"
     assert len(omega) >= passes, "each pass starts with the recording's first message (Omega)"
+
+
+def busy_processes(count: int = 2) -> list[subprocess.Popen]:
+    """CPU hogs beside a discovery-dependent flow (ended by pid by the caller)."""
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+
+
+@pytest.mark.parametrize("wait", [[], ["--wait-topic", "/plant/state"]], ids=["default", "wait_topic"])
+def test_replay_waits_for_a_subscriber_of_one_topic(wait):
+    """A lockstep recording at the default rate (about 1.2 s of playback): a subscriber of plant/state
+    alone, started after the replay, on a machine with two busy processes, gets every state.
+
+    Before: at the default (no wait) the replay had ended before the subscriber matched (checked:
+    with --wait-for-subscribers 0 this test fails), and --wait-for-subscribers 1 waited for a
+    subscriber on every topic, so this one hung it."""
+    recording = RECORDINGS / "paper_b0.3.mcap"
+    expected = [r.cdr_bytes for r in read_messages(recording) if r.topic == "/" + contract.TOPIC_PLANT_STATE]
+    domain = fresh_domain_id()
+    hogs = busy_processes()
+    try:
+        replay = subprocess.Popen([str(NNI_REPLAY), str(recording), *wait], env=ros_env(domain),
+                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        time.sleep(1.0)
+        probe = RawProbe(domain, (contract.TOPIC_PLANT_STATE,))
+        try:
+            output, _ = replay.communicate(timeout=60)
+            received = probe.wait_for(contract.TOPIC_PLANT_STATE, len(expected), 10.0)
+        finally:
+            probe.close()
+    finally:
+        for hog in hogs:
+            hog.kill()
+            hog.wait()
+    assert replay.returncode == 0, output
+    assert "waiting for 1 subscriber(s)" in output, "it says what it waits for"
+    assert [cdr for _, cdr in received] == expected
+
+
+# --------------------------------------------------------------------------------------------
+# (f) a recording describes itself
+# --------------------------------------------------------------------------------------------
+
+
+def plant_parameters() -> dict:
+    from nni_plant_sim.plant_node import DEFAULTS
+
+    return dict(DEFAULTS, mode="lockstep", duration_s=10.0, wait_for_subscribers=2)
+
+
+def controller_parameters(b: float) -> dict:
+    from nni_battery_controller.controller_node import DEFAULTS
+
+    return dict(DEFAULTS, battery_limit_pu=b)
+
+
+@pytest.fixture(scope="module")
+def described_run(tmp_path_factory) -> tuple[Path, dict]:
+    """A lockstep run of the paper's case, b = 0.3, its logger given the run's parameters."""
+    tmp = tmp_path_factory.mktemp("described")
+    path = tmp / "run.mcap"
+    metadata = {"scenario": {"name": "initial_angle", "delta0_rad": 0.2}, "plant": plant_parameters(),
+                "controller": controller_parameters(0.3), "mode": "lockstep", "rate_hz": 50.0,
+                "software_version": "test"}
+    text = json.dumps(metadata)
+    with node_processes(tmp, fresh_domain_id()) as start:
+        # A YAML single-quoted string, so that ROS takes the JSON object as the string parameter.
+        logger = start("logger", LOGGER, {"output_path": str(path), "discovery_period_s": 0.1,
+                                          "run_metadata": "'" + text.replace("'", "''") + "'"})
+        start("controller", CONTROLLER, {"battery_limit_pu": 0.3})
+        plant = start("plant", PLANT, {"mode": "lockstep", "duration_s": 10.0, "wait_for_subscribers": 2})
+        assert plant.wait(timeout=120) == 0, plant.output()
+        time.sleep(0.5)
+        assert logger.interrupt(timeout=15) == 0, logger.output()
+    return path, json.loads(text)
+
+
+def test_run_parameters_and_ros_distro_are_in_the_file(described_run):
+    """Read with the mcap library (no code of ours): nni_run and rosbag2's metadata record."""
+    path, metadata = described_run
+    with path.open("rb") as stream:
+        reader = make_reader(stream)
+        records = {record.name: record.metadata for record in reader.iter_metadata()}
+        statistics = reader.get_summary().statistics
+    assert {key: json.loads(value) for key, value in records[RUN_METADATA_NAME].items()} == metadata
+    rosbag2 = records["rosbag2"]
+    assert rosbag2["ROS_DISTRO"] == "jazzy"
+    bag = yaml.safe_load(rosbag2["serialized_metadata"])
+    assert bag["ros_distro"] == "jazzy" and bag["version"] == 9 and bag["storage_identifier"] == "mcap"
+    assert bag["message_count"] == statistics.message_count
+    assert {t["topic_metadata"]["name"]: t["message_count"] for t in bag["topics_with_message_count"]} == \
+        file_counts(path)
+
+
+def test_info_prints_what_ros2_bag_info_shows_the_parameters_and_the_verdicts(described_run):
+    path, metadata = described_run
+    result = subprocess.run([str(NNI_REPLAY), str(path), "--info"], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    out = result.stdout
+    assert "ROS Distro:        jazzy" in out and "Complete:          yes" in out
+    counts = file_counts(path)
+    assert f"Messages:          {sum(counts.values())}" in out
+    for topic, count in counts.items():
+        assert f"Topic: {topic} | " in out and f"| Count: {count} |" in out.split(f"Topic: {topic} | ")[1].split("\n")[0]
+    assert "QoS: reliable, volatile" in out and "QoS: reliable, transient_local" in out
+    for key, value in metadata.items():
+        assert f"  {key}: {json.dumps(value)}" in out
+    verdicts = out.split("Verdicts:\n")[1].splitlines()
+    printed = dict(line.strip().split(": ", 1) for line in verdicts if line.startswith("  "))
+    assert set(printed) >= {field.name for field in dataclasses.fields(Outcome)}, "every key of to_json()"
+    assert printed["b"] == "0.3" and printed["stable"] == "true", "the paper: b = 0.3 returns to equilibrium"
+
+
+def test_plot_draws_the_run_and_rrd_takes_f0_from_the_recording(described_run, tmp_path):
+    path, _ = described_run
+    figure = tmp_path / "run.png"
+    result = subprocess.run([str(NNI_REPLAY), str(path), "--plot", str(figure)], capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and figure.stat().st_size > 10_000
+    rrd = subprocess.run([str(NNI_REPLAY), str(path), "--rrd", str(tmp_path / "run.rrd")], capture_output=True,
+                         text=True, timeout=60)
+    assert rrd.returncode == 0 and "warning" not in rrd.stderr, rrd.stderr
+    refused = subprocess.run([str(NNI_REPLAY), str(path), "--rrd", str(tmp_path / "other.rrd"), "--f0-hz", "60"],
+                             capture_output=True, text=True, timeout=60)
+    assert_one_line_error(refused, "nni-replay")
+    assert "records f0 = 50 Hz" in refused.stderr
+
+
+def test_a_recording_without_parameters_is_refused_for_what_needs_them(tmp_path):
+    shipped = RECORDINGS / "paper_b0.3.mcap"
+    plot = subprocess.run([str(NNI_REPLAY), str(shipped), "--plot", str(tmp_path / "x.png")], capture_output=True,
+                          text=True, timeout=60)
+    assert_one_line_error(plot, "nni-replay")
+    assert "no run parameters" in plot.stderr and not (tmp_path / "x.png").exists()
+    info = subprocess.run([str(NNI_REPLAY), str(shipped), "--info"], capture_output=True, text=True, timeout=60)
+    assert info.returncode == 0 and "Run parameters:    not recorded" in info.stdout, info.stderr
 
 
 # --------------------------------------------------------------------------------------------
