@@ -574,3 +574,15 @@ def test_logger_rejects_a_missing_output_folder(tmp_path):
     assert result.returncode == 2
     assert_one_line_error(result, "mcap_logger")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("text", ["'not json'", "'[1, 2]'"], ids=["not_json", "not_an_object"])
+def test_logger_rejects_run_metadata_that_is_not_a_json_object(tmp_path, text):
+    result = subprocess.run(
+        [sys.executable, "-m", LOGGER, "--ros-args", "-p", f"output_path:={tmp_path / 'run.mcap'}",
+         "-p", f"run_metadata:={text}"],
+        env=ros_env(fresh_domain_id()), capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert_one_line_error(result, "mcap_logger")
+    assert "run_metadata" in result.stderr
+    assert list(tmp_path.iterdir()) == []
