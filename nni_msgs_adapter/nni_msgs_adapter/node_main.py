@@ -78,10 +78,10 @@ def run_node(factory, args=None, prog: str = "node") -> int:
 
     A node may offer ``done`` (an rclpy Future completed when its run is over,
     e.g. the plant after its duration) and ``close()`` (called before it is
-    destroyed, still able to publish). ``args`` are the process arguments
-    without the program name (None: ``sys.argv``).
+    destroyed, still able to publish). ``args`` are the process arguments,
+    program name first, as for ``rclpy.init`` (None: ``sys.argv``).
     """
-    user_args = remove_ros_args(sys.argv)[1:] if args is None else remove_ros_args(list(args))
+    user_args = remove_ros_args(sys.argv if args is None else list(args))[1:]
     if any(arg in ("-h", "--help") for arg in user_args):
         print(help_text(factory, prog))
         return 0
