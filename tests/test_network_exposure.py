@@ -9,9 +9,10 @@ defaults whose ``ROS_STATIC_PEERS`` names the root side of the link
 5 pu 50 times a second). With the default profile the rogue must discover
 nothing and none of its commands may appear in the loop; with ``NNI_NETWORK=
 multihost`` the same rogue must join (the control that shows the attack is
-real, so the first result is not vacuous). The sockets are checked too: in
-the default profile every socket our nodes bind to a port that is not
-ephemeral (the DDS well-known ports) is on 127.0.0.1.
+real, so the first result is not vacuous), with two busy processes beside the
+run. The sockets are checked too: in the default profile every socket our
+nodes bind to a port that is not ephemeral (the DDS well-known ports) is on
+127.0.0.1.
 
 Needs root for ``ip netns`` (CI runs as root); where that is not permitted the
 test fails and says why. The namespace and links are removed in every case.
@@ -57,7 +58,10 @@ class Link:
 
 
 def _ip(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(["ip", *args], capture_output=True, text=True, timeout=10)
+    try:
+        return subprocess.run(["ip", *args], capture_output=True, text=True, timeout=10)
+    except FileNotFoundError:
+        pytest.fail("the `ip` command (iproute2) is missing: this test builds a network namespace with it")
 
 
 @contextmanager
@@ -115,13 +119,25 @@ def _ephemeral_low() -> int:
     return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
 
 
+@contextmanager
+def busy_machine(processes: int = 2):
+    """Busy loops beside the run (discovery and timing under load); ended by pid."""
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(processes)]
+    try:
+        yield
+    finally:
+        for proc in busy:
+            proc.kill()
+            proc.wait()
+
+
 def run_attack(tmp_path: Path, network: str) -> dict:
     """Our loop with ``NNI_NETWORK=network`` in the root namespace, the rogue in another; what each saw."""
     domain = fresh_domain_id()
     mcap = tmp_path / f"{network}.mcap"
     env = ros_env(domain, **{NETWORK_ENV: network})
     env.pop(FASTDDS_PROFILES_ENV, None)
-    with veth_namespace() as link:
+    with veth_namespace() as link, busy_machine():
         rogue = subprocess.Popen(["ip", "netns", "exec", link.namespace, sys.executable, str(ROGUE), str(RUN_S + 8.0)],
                                  env=_rogue_env(domain, link), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                  text=True)
