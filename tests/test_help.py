@@ -63,9 +63,15 @@ def test_node_help_lists_each_parameter_with_its_default_and_description():
     assert "Range 10 to 1000." in words and "One of: initial_angle, mechanical_step, transfer_limit_fault." in words
 
 
-def test_an_argument_outside_ros_args_is_refused_with_one_line(tmp_path):
+@pytest.mark.parametrize("args, expected", [
+    (["out.mcap"], "mcap_logger: error: unrecognized arguments: out.mcap (node parameters go after --ros-args: "
+                   "-p name:=value; see --help)"),
+    (["--ros-args", "--help"], "mcap_logger: error: unknown arguments after --ros-args: ['--help'] (see --help)"),
+    (["--ros-args", "-p"], "mcap_logger: error: Failed to parse ROS arguments: Couldn't parse trailing -p flag. "
+                           "No parameter override rule found. (see --help)"),
+])
+def test_a_bad_argument_is_refused_with_one_line(tmp_path, args, expected):
     exe = Path(sys.prefix) / "lib" / "nni_msgs_adapter" / "mcap_logger"
-    done = subprocess.run([str(exe), "out.mcap"], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    done = subprocess.run([str(exe), *args], cwd=tmp_path, capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and list(tmp_path.iterdir()) == []
-    assert done.stderr == ("mcap_logger: error: unrecognized arguments: out.mcap (node parameters go after "
-                           "--ros-args: -p name:=value; see --help)\n")
+    assert done.stdout == "" and done.stderr == expected + "\n"

@@ -81,7 +81,14 @@ def run_node(factory, args=None, prog: str = "node") -> int:
     destroyed, still able to publish). ``args`` are the process arguments,
     program name first, as for ``rclpy.init`` (None: ``sys.argv``).
     """
-    user_args = remove_ros_args(sys.argv if args is None else list(args))[1:]
+    try:
+        user_args = remove_ros_args(sys.argv if args is None else list(args))[1:]
+    except _rclpy.UnknownROSArgsError as exc:
+        print(f"{prog}: error: unknown arguments after --ros-args: {exc} (see --help)", file=sys.stderr)
+        return EXIT_USAGE
+    except _rclpy.RCLInvalidROSArgsError as exc:
+        print(f"{prog}: error: {_rcl_reason(str(exc))} (see --help)", file=sys.stderr)
+        return EXIT_USAGE
     if any(arg in ("-h", "--help") for arg in user_args):
         print(help_text(factory, prog))
         return 0
@@ -157,8 +164,8 @@ def select_dds_profile(environ) -> str | None:
     if not own:
         environ[FASTDDS_PROFILES_ENV] = str(network_profile(network or DEFAULT_NETWORK))
         return None
-    ours = {str(network_profile(name)) for name in ([network] if network else NETWORK_PROFILES)}
-    if str(Path(own).resolve()) in ours:
+    ours = {network_profile(name).resolve() for name in ([network] if network else NETWORK_PROFILES)}
+    if Path(own).resolve() in ours:
         return None
     if network:
         raise StartupError(f"{NETWORK_ENV}={network} and {FASTDDS_PROFILES_ENV}={own} both choose the DDS profile: "
@@ -185,9 +192,13 @@ def security_error_text(rcl_error: str) -> str:
         return (f"DDS security requested ({SECURITY_ENABLE_ENV}=true) but not supported: this Fast DDS is built "
                 "without the DDS Security plugins (as the PyPI wheels are); SROS2 needs a ROS 2 Jazzy install "
                 "(README, Security)")
-    reason = rcl_error.splitlines()[0].split(", at /")[0]
     return (f"DDS security requested ({SECURITY_ENABLE_ENV}=true, {SECURITY_STRATEGY_ENV}="
-            f"{os.environ.get(SECURITY_STRATEGY_ENV)}) but the node cannot start securely: {reason}")
+            f"{os.environ.get(SECURITY_STRATEGY_ENV)}) but the node cannot start securely: {_rcl_reason(rcl_error)}")
+
+
+def _rcl_reason(rcl_error: str) -> str:
+    """The first line of an rcl error without its source location (``, at /project/src/...``)."""
+    return rcl_error.splitlines()[0].split(", at /")[0]
 
 
 def help_text(factory, prog: str) -> str:
