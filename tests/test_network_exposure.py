@@ -214,3 +214,15 @@ def test_a_bad_network_choice_is_one_line_and_exit_2(tmp_path, env, expected):
                           capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert done.returncode == 2
     assert done.stdout == "" and done.stderr.count("\n") == 1 and expected in done.stderr, done.stderr
+
+
+def test_a_profile_file_of_the_users_own_is_used_and_said_on_the_log(tmp_path):
+    own = tmp_path / "my_profile.xml"
+    own.write_text(network_profile("multihost").read_text())
+    done = subprocess.run([sys.executable, "-m", "nni_plant_sim.plant_node", "--ros-args", "-p", "mode:=lockstep",
+                           "-p", "duration_s:=0.1", "-p", "wait_for_subscribers:=0", "-p", "lockstep_timeout_s:=0.01"],
+                          env=ros_env(fresh_domain_id(), **{FASTDDS_PROFILES_ENV: str(own)}), capture_output=True,
+                          text=True, timeout=60, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert (f"DDS profile from FASTRTPS_DEFAULT_PROFILES_FILE={own}: the network the node listens on is as that "
+            "file says (the loopback-only default is not applied)") in done.stderr
