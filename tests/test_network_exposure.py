@@ -158,7 +158,11 @@ def run_attack(tmp_path: Path, network: str) -> dict:
         finally:
             for node in nodes:
                 node.interrupt(timeout=10.0)
-        out, _ = rogue.communicate(timeout=60.0)
+            try:
+                out, _ = rogue.communicate(timeout=60.0)  # it ends by itself after its attack
+            except subprocess.TimeoutExpired:
+                rogue.kill()
+                out, _ = rogue.communicate()
     reports = [line[len(REPORT_PREFIX):] for line in out.splitlines() if line.startswith(REPORT_PREFIX)]
     assert reports, f"the rogue printed no report:\n{out}"
     commands, applied = [], []
