@@ -9,6 +9,23 @@ its unsent samples with it; reliable writers heartbeat every 50 ms, see
 exits 0. rclpy's own handlers are not installed: they
 would invalidate the context before ``close()`` could publish. Invalid start-up
 parameters print one line naming the problem and exit 2.
+
+Before ROS starts:
+
+- ``--help`` prints the node's usage and parameters (its module's ``PARAMETERS``
+  table) and exits 0, starting nothing; any other argument outside
+  ``--ros-args`` is refused with one line, exit 2.
+- The DDS network (issue 11, attack 7): every participant binds to loopback
+  only (``config/fastdds_profiles.xml``) unless ``NNI_NETWORK=multihost``
+  selects ``config/fastdds_profiles_multihost.xml`` (reachable from the network,
+  for a loop spread over hosts: other hosts named in ``ROS_STATIC_PEERS``). A
+  ``FASTRTPS_DEFAULT_PROFILES_FILE`` of the user's own is used as it is (said on
+  the node's log); set together with ``NNI_NETWORK`` it is refused.
+- SROS2: with ``ROS_SECURITY_ENABLE=true`` the strategy defaults to ``Enforce``
+  (ROS's default, ``Permissive``, silently runs without security when the
+  enclave is missing), and a middleware that cannot do DDS Security (the Fast
+  DDS of the PyPI wheels has no security plugins) or an unusable keystore stops
+  the node with one line and exit 2 instead of a traceback.
 """
 
 from __future__ import annotations
@@ -16,13 +33,18 @@ from __future__ import annotations
 import os
 import signal
 import sys
+import textwrap
 import time
+import warnings
+from pathlib import Path
 
 import rclpy
 from rclpy.duration import Duration
 from rclpy.exceptions import ParameterException
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
 
 from nni_msgs_adapter.cli_support import EXIT_USAGE
 from nni_msgs_adapter.ros_params import config_path
@@ -31,8 +53,24 @@ from nni_msgs_adapter.ros_params import config_path
 _SIGNAL_POLL_S = 0.05
 #: Fast DDS (2.x, Jazzy) takes its default QoS profiles from the XML file this names.
 FASTDDS_PROFILES_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
+#: Selects the DDS network of the nodes: a key of NETWORK_PROFILES (default DEFAULT_NETWORK).
+NETWORK_ENV = "NNI_NETWORK"
+#: NNI_NETWORK value -> Fast DDS profile in nni_msgs_adapter/config.
+NETWORK_PROFILES = {"loopback": "fastdds_profiles.xml", "multihost": "fastdds_profiles_multihost.xml"}
+DEFAULT_NETWORK = "loopback"
+#: SROS2 switches read by rcl.
+SECURITY_ENABLE_ENV = "ROS_SECURITY_ENABLE"
+SECURITY_STRATEGY_ENV = "ROS_SECURITY_STRATEGY"
 #: Longest wait at exit for reliable subscribers to acknowledge what was published, s.
 ACK_TIMEOUT_S = 2.0
+#: rmw_fastrtps's error when Fast DDS was built without the DDS Security plugins.
+_NO_SECURITY_LIBRARIES = "doesn't have the security libraries"
+#: Width of the --help text.
+_HELP_WIDTH = 88
+
+
+class StartupError(Exception):
+    """A configuration that stops a node before ROS starts: one line, exit ``EXIT_USAGE``."""
 
 
 def run_node(factory, args=None, prog: str = "node") -> int:
@@ -40,17 +78,52 @@ def run_node(factory, args=None, prog: str = "node") -> int:
 
     A node may offer ``done`` (an rclpy Future completed when its run is over,
     e.g. the plant after its duration) and ``close()`` (called before it is
-    destroyed, still able to publish).
+    destroyed, still able to publish). ``args`` are the process arguments,
+    program name first, as for ``rclpy.init`` (None: ``sys.argv``).
     """
-    # Fast DDS reads it when the first participant is created, after this.
-    os.environ.setdefault(FASTDDS_PROFILES_ENV, str(config_path("nni_msgs_adapter", "fastdds_profiles.xml")))
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     try:
-        node = factory()
+        user_args = remove_ros_args(sys.argv if args is None else list(args))[1:]
+    except _rclpy.UnknownROSArgsError as exc:
+        print(f"{prog}: error: unknown arguments after --ros-args: {exc} (see --help)", file=sys.stderr)
+        return EXIT_USAGE
+    except _rclpy.RCLInvalidROSArgsError as exc:
+        print(f"{prog}: error: {_rcl_reason(str(exc))} (see --help)", file=sys.stderr)
+        return EXIT_USAGE
+    if any(arg in ("-h", "--help") for arg in user_args):
+        print(help_text(factory, prog))
+        return 0
+    try:
+        if user_args:
+            raise StartupError(f"unrecognized arguments: {' '.join(user_args)} "
+                               "(node parameters go after --ros-args: -p name:=value; see --help)")
+        own_profile = select_dds_profile(os.environ)
+        if security_requested(os.environ):
+            os.environ.setdefault(SECURITY_STRATEGY_ENV, "Enforce")
+    except StartupError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except _rclpy.RCLError as exc:
+        return _security_failure(exc, prog)
+    try:
+        # rclpy warns about the half-made node it cleans up after an rcl error;
+        # held back here so that a failed secure start says one thing only.
+        with warnings.catch_warnings(record=True) as held:
+            warnings.simplefilter("always")
+            node = factory()
     except (ValueError, ParameterException) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
         return EXIT_USAGE
+    except _rclpy.RCLError as exc:
+        rclpy.try_shutdown()
+        return _security_failure(exc, prog)
+    for warning in held:
+        warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+    if own_profile is not None:
+        node.get_logger().info(f"DDS profile from {FASTDDS_PROFILES_ENV}={own_profile}: the network the node "
+                               "listens on is as that file says (the loopback-only default is not applied)")
     stop = []
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda number, frame: stop.append(number))
@@ -69,6 +142,115 @@ def run_node(factory, args=None, prog: str = "node") -> int:
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def network_profile(network: str) -> Path:
+    """The Fast DDS profile file of an ``NNI_NETWORK`` value."""
+    return config_path("nni_msgs_adapter", NETWORK_PROFILES[network])
+
+
+def select_dds_profile(environ) -> str | None:
+    """Point ``FASTRTPS_DEFAULT_PROFILES_FILE`` in ``environ`` at the profile ``NNI_NETWORK`` selects.
+
+    Fast DDS reads the variable when the first participant is created, after
+    this. Returns the user's own profile file when one is set and left alone
+    (None when the file is ours); raises StartupError for an unknown
+    ``NNI_NETWORK`` or one set beside a profile file of the user's own.
+    """
+    network = environ.get(NETWORK_ENV, "")
+    if network and network not in NETWORK_PROFILES:
+        raise StartupError(f"{NETWORK_ENV} must be one of {', '.join(NETWORK_PROFILES)}, got {network!r}")
+    own = environ.get(FASTDDS_PROFILES_ENV, "")
+    if not own:
+        environ[FASTDDS_PROFILES_ENV] = str(network_profile(network or DEFAULT_NETWORK))
+        return None
+    ours = {network_profile(name).resolve() for name in ([network] if network else NETWORK_PROFILES)}
+    if Path(own).resolve() in ours:
+        return None
+    if network:
+        raise StartupError(f"{NETWORK_ENV}={network} and {FASTDDS_PROFILES_ENV}={own} both choose the DDS profile: "
+                           "unset one of them")
+    return own
+
+
+def security_requested(environ) -> bool:
+    """Whether SROS2 is switched on (rcl enables security for exactly ``true``)."""
+    return environ.get(SECURITY_ENABLE_ENV, "") == "true"
+
+
+def _security_failure(exc, prog: str) -> int:
+    """One line for an rcl error when security was requested (else the error propagates); exit 2."""
+    if not security_requested(os.environ):
+        raise exc
+    print(f"{prog}: error: {security_error_text(str(exc))}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+def security_error_text(rcl_error: str) -> str:
+    """What a failed secure start means, in one line, from rcl's error text."""
+    if _NO_SECURITY_LIBRARIES in rcl_error:
+        return (f"DDS security requested ({SECURITY_ENABLE_ENV}=true) but not supported: this Fast DDS is built "
+                "without the DDS Security plugins (as the PyPI wheels are); SROS2 needs a ROS 2 Jazzy install "
+                "(README, Security)")
+    return (f"DDS security requested ({SECURITY_ENABLE_ENV}=true, {SECURITY_STRATEGY_ENV}="
+            f"{os.environ.get(SECURITY_STRATEGY_ENV)}) but the node cannot start securely: {_rcl_reason(rcl_error)}")
+
+
+def _rcl_reason(rcl_error: str) -> str:
+    """The first line of an rcl error without its source location (``, at /project/src/...``)."""
+    return rcl_error.splitlines()[0].split(", at /")[0]
+
+
+def help_text(factory, prog: str) -> str:
+    """Usage of a node: its module's summary, its parameters with defaults, and the environment it reads.
+
+    The parameters are the ``PARAMETERS`` table (ros_params.Spec) of the module
+    that defines ``factory``; the defaults shown are those the node starts with.
+    """
+    module = sys.modules.get(getattr(factory, "__module__", ""), None)
+    summary = ((getattr(module, "__doc__", None) or "").strip().split("\n\n") or [""])[0]
+    specs = getattr(module, "PARAMETERS", ())
+    lines = [f"usage: {prog} [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r __ns:=/NAMESPACE]]",
+             "", *textwrap.wrap(" ".join(summary.split()), _HELP_WIDTH), ""]
+    if specs:
+        lines.append("parameters (-p NAME:=VALUE; default in brackets; read-only ones only at start):")
+        for spec in specs:
+            text = spec.description
+            if spec.choices:
+                text += f" One of: {', '.join(spec.choices)}."
+            if spec.low is not None and spec.high is not None and not isinstance(spec.default, bool):
+                text += f" Range {_number_text(spec.low, spec.default)} to {_number_text(spec.high, spec.default)}."
+            if spec.read_only:
+                text += " Read-only."
+            lines += _help_entry(f"{spec.name} [{_default_text(spec.default)}]", text)
+        lines.append("")
+    lines.append("environment:")
+    lines += _help_entry(f"{NETWORK_ENV} [{DEFAULT_NETWORK}]",
+                         "loopback: DDS only on 127.0.0.1 and shared memory (other hosts and network namespaces "
+                         "cannot join); multihost: every interface, for a loop over several hosts (name them in "
+                         "ROS_STATIC_PEERS).")
+    lines += _help_entry(f"{SECURITY_ENABLE_ENV}, ROS_SECURITY_KEYSTORE, --ros-args --enclave /nni/<node>",
+                         "SROS2 on ROS 2 Jazzy installs (the PyPI Fast DDS has no DDS Security): README, Security.")
+    return "\n".join(lines)
+
+
+def _help_entry(name: str, text: str) -> list[str]:
+    """One name of the help and its wrapped, indented description."""
+    return [f"  {name}", *textwrap.wrap(text, _HELP_WIDTH, initial_indent="      ", subsequent_indent="      ")]
+
+
+def _number_text(value: float, default) -> str:
+    """A range bound as the parameter's type prints it (integers whole)."""
+    return str(int(value)) if isinstance(default, int) else f"{value:g}"
+
+
+def _default_text(value) -> str:
+    """A default as it is typed on the command line (``.inf``, ``true``, ``''``)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float) and value == float("inf"):
+        return ".inf"
+    return repr(value) if value == "" else str(value)
 
 
 def make_executor():

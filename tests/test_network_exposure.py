@@ -1,0 +1,258 @@
+"""Network exposure (issue 11, attack 7): by default no participant of ours is reachable from the network.
+
+The test builds what the attack used: a network namespace joined to the root
+namespace by a veth pair (private 10.213.x.0/30 addresses on the veth only), a
+loop of ours in the root namespace (plant, controller, MCAP logger, as a user
+starts them) and, in the namespace, a rogue rclpy process with plain Fast DDS
+defaults whose ``ROS_STATIC_PEERS`` names the root side of the link
+(tests/rogue_peer.py: it answers every measurement it hears, and commands
+5 pu 50 times a second). With the default profile the rogue must discover
+nothing and none of its commands may appear in the loop; with ``NNI_NETWORK=
+multihost`` the same rogue must join (the control that shows the attack is
+real, so the first result is not vacuous), with two busy processes beside the
+run. The sockets are checked too: in the default profile every socket our
+nodes bind to a port that is not ephemeral (the DDS well-known ports) is on
+127.0.0.1.
+
+Needs root for ``ip netns`` (CI runs as root); where that is not permitted the
+test fails and says why. The namespace and links are removed in every case.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+import time
+import xml.etree.ElementTree as ET
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+from nni_battery_controller.demo import node_command
+from nni_msgs_adapter import contract
+from nni_msgs_adapter.mcap_io import deserialize, read_messages
+from nni_msgs_adapter.node_main import FASTDDS_PROFILES_ENV, NETWORK_ENV, network_profile
+from nni_plant_sim.plant_node import SUMMARY_PREFIX
+from rogue_peer import REPORT_PREFIX, ROGUE_POWER_PU
+from rosproc import NodeProcess, fresh_domain_id, ros_env
+
+pytestmark = pytest.mark.ros
+
+B = 0.3
+RUN_S = 6.0
+ROGUE = Path(__file__).with_name("rogue_peer.py")
+OUR_NODES = {"/plant", "/controller", "/mcap_logger"}
+
+
+@dataclass(frozen=True)
+class Link:
+    """A network namespace and the veth pair joining it to the root namespace."""
+
+    namespace: str
+    host_ip: str
+    namespace_ip: str
+
+
+def _ip(*args: str) -> subprocess.CompletedProcess:
+    try:
+        return subprocess.run(["ip", *args], capture_output=True, text=True, timeout=10)
+    except FileNotFoundError:
+        pytest.fail("the `ip` command (iproute2) is missing: this test builds a network namespace with it")
+
+
+@contextmanager
+def veth_namespace():
+    """A fresh namespace ``nni-sec-<pid>`` with ``lo`` up and a /30 on a veth pair; removed at exit."""
+    tag = os.getpid() % 100_000
+    namespace, host_if, namespace_if = f"nni-sec-{tag}", f"nnis{tag}h", f"nnis{tag}n"
+    subnet = f"10.213.{tag % 250}"
+    link = Link(namespace, f"{subnet}.1", f"{subnet}.2")
+    in_use = _ip("-4", "-o", "addr", "show").stdout
+    assert f" {subnet}." not in in_use, f"{subnet}.0/30 is already in use on this machine:\n{in_use}"
+    steps = (
+        ("netns", "add", namespace),
+        ("link", "add", host_if, "type", "veth", "peer", "name", namespace_if),
+        ("link", "set", namespace_if, "netns", namespace),
+        ("addr", "add", f"{link.host_ip}/30", "dev", host_if),
+        ("link", "set", host_if, "up"),
+        ("-n", namespace, "addr", "add", f"{link.namespace_ip}/30", "dev", namespace_if),
+        ("-n", namespace, "link", "set", namespace_if, "up"),
+        ("-n", namespace, "link", "set", "lo", "up"),
+    )
+    try:
+        for step in steps:
+            done = _ip(*step)
+            if done.returncode != 0:
+                pytest.fail(f"cannot build the test's network namespace: `ip {' '.join(step)}` failed "
+                            f"({done.stderr.strip()}); this test needs root and `ip netns` (CI runs as root)")
+        yield link
+    finally:
+        _ip("link", "del", host_if)  # deleting one end of a veth pair deletes both
+        _ip("netns", "del", namespace)
+
+
+def _rogue_env(domain: int, link: Link) -> dict:
+    """Plain Fast DDS defaults (no profile of ours), the root side of the link as its static peer."""
+    env = {k: v for k, v in os.environ.items() if k not in (FASTDDS_PROFILES_ENV, NETWORK_ENV)}
+    env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               ROS_STATIC_PEERS=link.host_ip, PYTHONUNBUFFERED="1")
+    return env
+
+
+def _udp_sockets(pids) -> list[tuple[str, int]]:
+    """``(address, port)`` of every UDP socket the processes ``pids`` have bound (``ss -uapn``)."""
+    pids = list(pids)
+    listing = subprocess.run(["ss", "-uapn"], capture_output=True, text=True, check=True, timeout=10).stdout
+    sockets = []
+    for line in listing.splitlines():
+        if any(f"pid={pid}," in line for pid in pids):
+            address, port = line.split()[3].rsplit(":", 1)
+            sockets.append((address, int(port)))
+    return sockets
+
+
+def _ephemeral_low() -> int:
+    return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+
+
+@contextmanager
+def busy_machine(processes: int = 2):
+    """Busy loops beside the run (discovery and timing under load); ended by pid."""
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(processes)]
+    try:
+        yield
+    finally:
+        for proc in busy:
+            proc.kill()
+            proc.wait()
+
+
+def run_attack(tmp_path: Path, network: str) -> dict:
+    """Our loop with ``NNI_NETWORK=network`` in the root namespace, the rogue in another; what each saw."""
+    domain = fresh_domain_id()
+    mcap = tmp_path / f"{network}.mcap"
+    env = ros_env(domain, **{NETWORK_ENV: network})
+    env.pop(FASTDDS_PROFILES_ENV, None)
+    with veth_namespace() as link, busy_machine():
+        rogue = subprocess.Popen(["ip", "netns", "exec", link.namespace, sys.executable, str(ROGUE), str(RUN_S + 8.0)],
+                                 env=_rogue_env(domain, link), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                 text=True)
+        nodes = []
+        try:
+            def start(name, module, params):
+                nodes.append(NodeProcess(node_command(module, params), env, tmp_path / f"{network}_{name}.log"))
+                return nodes[-1]
+
+            start("logger", "nni_msgs_adapter.mcap_logger", {"output_path": str(mcap)})
+            start("controller", "nni_battery_controller.controller_node", {"battery_limit_pu": B})
+            plant = start("plant", "nni_plant_sim.plant_node",
+                          {"mode": "realtime", "duration_s": RUN_S, "wait_for_subscribers": 2})
+            time.sleep(RUN_S / 2 + 2.0)  # mid-run: every participant is up
+            sockets = _udp_sockets(node.proc.pid for node in nodes)
+            assert plant.wait(timeout=60.0) == 0, plant.output()
+        finally:
+            for node in nodes:
+                node.interrupt(timeout=10.0)
+            try:
+                out, _ = rogue.communicate(timeout=60.0)  # it ends by itself after its attack
+            except subprocess.TimeoutExpired:
+                rogue.kill()
+                out, _ = rogue.communicate()
+    reports = [line[len(REPORT_PREFIX):] for line in out.splitlines() if line.startswith(REPORT_PREFIX)]
+    assert reports, f"the rogue printed no report:\n{out}"
+    commands, applied = [], []
+    for record in read_messages(mcap):
+        if record.topic == "/" + contract.TOPIC_BATTERY_COMMAND:
+            commands.append(contract.command_from_message(deserialize(record.type_name, record.cdr_bytes))[1])
+        elif record.topic == "/" + contract.TOPIC_PLANT_STATE:
+            applied.append(contract.plant_state_from_message(deserialize(record.type_name, record.cdr_bytes))[3])
+    return {"rogue": json.loads(reports[-1]), "sockets": sockets, "commands": commands, "applied": applied}
+
+
+def test_a_process_in_another_network_namespace_cannot_join_the_default_loop(tmp_path):
+    seen = run_attack(tmp_path, "loopback")
+    rogue = seen["rogue"]
+    assert rogue["commands_sent"] > 0, rogue
+    assert rogue["nodes"] == [] and rogue["measurements"] == 0 and rogue["max_command_subscribers"] == 0, rogue
+    assert seen["commands"] and max(abs(p) for p in seen["commands"]) <= B + 1e-12, \
+        "a command other than the controller's reached the loop"
+    assert seen["applied"] and max(abs(p) for p in seen["applied"]) <= B + 1e-12
+    fixed = [(address, port) for address, port in seen["sockets"] if port < _ephemeral_low()]
+    assert fixed, seen["sockets"]
+    assert all(address == "127.0.0.1" for address, _ in fixed), fixed
+
+
+def test_with_the_multihost_switch_the_same_rogue_joins_the_loop(tmp_path):
+    """The control: the attack is real, and NNI_NETWORK=multihost does open the loop to the network."""
+    seen = run_attack(tmp_path, "multihost")
+    rogue = seen["rogue"]
+    assert OUR_NODES <= set(rogue["nodes"]), rogue
+    assert rogue["measurements"] > 0 and rogue["max_command_subscribers"] >= 1, rogue
+    assert ROGUE_POWER_PU in seen["commands"], "the rogue's commands did not reach the loop"
+    assert any(address == "0.0.0.0" for address, port in seen["sockets"] if port < _ephemeral_low()), seen["sockets"]
+
+
+def test_both_profiles_give_reliable_writers_the_same_settings():
+    """The multi-host profile differs from the default in its transports only."""
+    def publisher(path):
+        root = ET.parse(path).getroot()
+        return [ET.tostring(element) for element in root if element.tag.endswith("publisher")]
+
+    default, multihost = network_profile("loopback"), network_profile("multihost")
+    assert publisher(default) and publisher(default) == publisher(multihost)
+    assert re.search(r"<address>127\.0\.0\.1</address>", default.read_text())
+    assert "transport_descriptor" not in multihost.read_text()
+
+
+@pytest.mark.parametrize("env, expected", [
+    ({NETWORK_ENV: "wan"}, "NNI_NETWORK must be one of loopback, multihost, got 'wan'"),
+    ({NETWORK_ENV: "multihost", FASTDDS_PROFILES_ENV: "/etc/my_profile.xml"},
+     "NNI_NETWORK=multihost and FASTRTPS_DEFAULT_PROFILES_FILE=/etc/my_profile.xml both choose the DDS profile"),
+])
+def test_a_bad_network_choice_is_one_line_and_exit_2(tmp_path, env, expected):
+    done = subprocess.run([sys.executable, "-m", "nni_plant_sim.plant_node"], env=ros_env(fresh_domain_id(), **env),
+                          capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert done.returncode == 2
+    assert done.stdout == "" and done.stderr.count("\n") == 1 and expected in done.stderr, done.stderr
+
+
+def test_a_profile_file_of_the_users_own_is_used_and_said_on_the_log(tmp_path):
+    own = tmp_path / "my_profile.xml"
+    own.write_text(network_profile("multihost").read_text())
+    done = subprocess.run([sys.executable, "-m", "nni_plant_sim.plant_node", "--ros-args", "-p", "mode:=lockstep",
+                           "-p", "duration_s:=0.1", "-p", "wait_for_subscribers:=0", "-p", "lockstep_timeout_s:=0.01"],
+                          env=ros_env(fresh_domain_id(), **{FASTDDS_PROFILES_ENV: str(own)}), capture_output=True,
+                          text=True, timeout=60, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert (f"DDS profile from FASTRTPS_DEFAULT_PROFILES_FILE={own}: the network the node listens on is as that "
+            "file says (the loopback-only default is not applied)") in done.stderr
+
+
+def test_the_multihost_switch_runs_the_loop_across_network_namespaces(tmp_path):
+    """What the switch is for: the plant on one side of a link, the controller on the other, peers named."""
+    domain = fresh_domain_id()
+    with veth_namespace() as link, busy_machine():
+        controller_env = ros_env(domain, **{NETWORK_ENV: "multihost"}, ROS_STATIC_PEERS=link.host_ip)
+        controller = subprocess.Popen(
+            ["ip", "netns", "exec", link.namespace,
+             *node_command("nni_battery_controller.controller_node", {"battery_limit_pu": B})],
+            env=controller_env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            plant = subprocess.run(
+                node_command("nni_plant_sim.plant_node", {"mode": "realtime", "duration_s": 3.0,
+                                                          "wait_for_subscribers": 1}),
+                env=ros_env(domain, **{NETWORK_ENV: "multihost"}, ROS_STATIC_PEERS=link.namespace_ip),
+                capture_output=True, text=True, timeout=120, cwd=tmp_path)
+        finally:
+            controller.terminate()
+            controller.wait(timeout=20)
+    assert plant.returncode == 0, plant.stderr
+    summary = json.loads(next(line for line in plant.stdout.splitlines()
+                              if line.startswith(SUMMARY_PREFIX))[len(SUMMARY_PREFIX):])
+    # 3 s at 50/s; under the busy loops a few instants may be skipped or answered late.
+    assert summary["measurements"] >= 100 and summary["commands"] >= 0.9 * summary["measurements"], summary
