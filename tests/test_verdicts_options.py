@@ -130,7 +130,8 @@ def test_a_permanent_step_says_the_equilibrium_moved(tmp_path, nni_simulate_exe)
     (item,) = json.loads((tmp_path / "o.json").read_text())["scenarios"]
     assert item["equilibrium_moved"] is True and item["in_synchronism"] is True and item["stable"] is False
     assert item["final_angle_dev_rad"] == pytest.approx((0.95 - 0.8) / (1.1 - 1.0), abs=0.02)
-    assert "NEW EQUILIBRIUM" in result.stdout and "the equilibrium moved away from delta_bar" in result.stdout
+    assert "NEW EQUILIBRIUM" in result.stdout and "the equilibrium moves away from delta_bar" in result.stdout
+    assert "(P_M,step - P_M)/(L - K) = 1.500 rad" in result.stdout
 
 
 def test_the_default_step_is_temporary_and_recovers(tmp_path, nni_simulate_exe):

@@ -44,7 +44,7 @@ from nni_msgs_adapter.cli_support import (
     writable_output,
 )
 from nni_msgs_adapter.palette import colour_hex
-from nni_plant_sim.model import SmibParams, critical_angles_rad, invariant_set_boundary
+from nni_plant_sim.model import SmibParams, critical_angles_rad, invariant_set_boundary, restoring_power
 from nni_plant_sim.scenarios import TransferLimitFault
 
 PAPER_BATTERY_LIMITS = (0.0, 0.2, 0.3, math.inf)
@@ -410,6 +410,22 @@ def run_cct(args, model, plant: SmibParams) -> int:
     return 0
 
 
+def permanent_step_note(model, plant: SmibParams) -> str:
+    """What a permanent mechanical power step does, with the new equilibrium angles in closed form."""
+    step, c = model.plant["step_p_mech_pu"], model.controller
+    # Unsaturated steady state: x3 = K d, P_ST = w = -(L - K) d - g(d); g(d) cancels the change of P_E,
+    # so P_M,step - P_M = (L - K) d.
+    with_battery = (step - plant.p_mech_pu) / (c["gain_l"] - c["gain_k"])
+    battery = -(c["gain_l"] - c["gain_k"]) * with_battery - float(restoring_power(with_battery, plant))
+    without = (math.asin(step / plant.p_max_pu) - plant.delta_bar_rad) if step < plant.p_max_pu else math.nan
+    return (f"the mechanical power step is permanent: the equilibrium moves away from delta_bar, which the "
+            f"controller's model keeps. With the battery unsaturated the rotor settles at d = (P_M,step - P_M)/(L - K)"
+            f" = {with_battery:.3f} rad (the law's g(d) cancels the change of electrical power, only L - K holds the "
+            f"rotor) with the battery at P_ST = {battery:+.3f} pu for as long as the step lasts (if b allows it, "
+            f"else it saturates); without battery the "
+            f"new equilibrium is d = asin(P_M,step/P_max) - delta_bar = {without:.3f} rad")
+
+
 def run_time_domain(args, model, plant: SmibParams) -> int:
     """One run per b: the table, --json and --plot."""
     scenario = model.scenario()
@@ -423,9 +439,7 @@ def run_time_domain(args, model, plant: SmibParams) -> int:
     print(format_table(outcomes))
     print(verdict_legend(outcomes))
     if any(o["equilibrium_moved"] for o in outcomes):
-        print("the mechanical power step is permanent: the equilibrium moved away from delta_bar, which the "
-              "controller's model keeps, so the battery pushes toward the old angle for as long as the step lasts "
-              "and the run cannot return (settle) at d = 0")
+        print(permanent_step_note(model, plant))
     if args.json:
         with atomic_output(args.json) as handle:
             json.dump({"scenario": model.scenario_values(), "controller": controller_text(args.controller_rate),
