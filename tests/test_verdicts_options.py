@@ -10,7 +10,6 @@ integrations written here, never from the code under test.
 
 from __future__ import annotations
 
-import io
 import json
 import math
 import signal
@@ -236,6 +235,15 @@ def test_cct_brackets_the_equal_area_closed_form_for_b0(tmp_path, nni_simulate_e
     assert summary["equal_area_cct_s"] == pytest.approx(t_cr, abs=1e-6)
     assert "bisection to 1 ms: bracket [0, 0.001] s" in result.stdout
     assert f"{t_cr:.4f} s" in result.stdout
+
+
+@pytest.mark.parametrize(("args", "flag"), [(["--roa", "x", "--duration", "5"], "--duration"),
+                                             (["--roa-grid", "50"], "--roa-grid"),
+                                             (["--roa-speed-max", "5"], "--roa-speed-max")])
+def test_an_option_of_another_mode_is_refused(tmp_path, nni_simulate_exe, args, flag):
+    line = one_error_line(run(nni_simulate_exe, *args, cwd=tmp_path))
+    assert flag in line
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_cct_refuses_a_clearing_time_or_another_scenario(nni_simulate_exe):

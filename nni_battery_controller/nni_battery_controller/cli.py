@@ -74,6 +74,9 @@ def controller_rate(text: str):
 
 #: Largest --roa grid per axis: 1000 x 1000 cells hold about 0.2 GB of state during the sweep.
 ROA_GRID_MAX = 1000
+#: Defaults of the options that only --roa takes (None on the parser, so that one given without --roa is refused).
+ROA_DEFAULTS = {"roa_grid": 200, "roa_speed_max": 10.0}
+DEFAULT_DURATION_S = 10.0
 
 
 def roa_grid_size(text: str) -> int:
@@ -93,7 +96,8 @@ def build_parser() -> OneLineParser:
                            formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--b", type=battery_limit, nargs="+", default=list(PAPER_BATTERY_LIMITS),
                         metavar="B", help="battery power limits in pu (numbers >= 0 or 'inf'); default: 0 0.2 0.3 inf")
-    parser.add_argument("--duration", type=positive_float, default=10.0, help="simulated seconds (default: 10)")
+    parser.add_argument("--duration", type=positive_float, default=None,
+                        help=f"simulated seconds (default: {DEFAULT_DURATION_S:g}); --roa has its own horizon")
     parser.add_argument("--controller-rate", type=controller_rate, default=None,
                         help="'continuous' (default) or the sampled-data controller rate in Hz")
     parser.add_argument("--json", type=writable_output, help="write the per-scenario summary as JSON here (default: none)")
@@ -105,10 +109,11 @@ def build_parser() -> OneLineParser:
                         help="instead of the time-domain run: region of attraction of each b on a grid of initial "
                              "conditions, written to PREFIX.png (basins, Omega, EAC) and PREFIX.json (basin areas); "
                              "default: none")
-    parser.add_argument("--roa-grid", type=roa_grid_size, default=200, metavar="N",
-                        help=f"--roa: N x N initial conditions (10 to {ROA_GRID_MAX}, default: 200)")
-    parser.add_argument("--roa-speed-max", type=positive_float, default=10.0,
-                        help="--roa: initial speed deviations within +-this, rad/s (default: 10); angles within +-pi")
+    parser.add_argument("--roa-grid", type=roa_grid_size, default=None, metavar="N",
+                        help=f"--roa: N x N initial conditions (10 to {ROA_GRID_MAX}, default: {ROA_DEFAULTS['roa_grid']})")
+    parser.add_argument("--roa-speed-max", type=positive_float, default=None,
+                        help=f"--roa: initial speed deviations within +-this, rad/s (default: "
+                             f"{ROA_DEFAULTS['roa_speed_max']:g}); angles within +-pi")
     add_model_options(parser)
     return parser
 
@@ -453,6 +458,21 @@ def run_time_domain(args, model, plant: SmibParams) -> int:
     return 0
 
 
+def apply_mode_defaults(args) -> None:
+    """Fill the defaults of --duration and the --roa options; CliError for one given where it does not apply."""
+    if args.roa:
+        if args.duration is not None:
+            raise CliError("--roa integrates each initial condition until decided (up to its own horizon): "
+                           "it takes no --duration")
+        for name, value in ROA_DEFAULTS.items():
+            setattr(args, name, value if getattr(args, name) is None else getattr(args, name))
+        return
+    for name in ROA_DEFAULTS:
+        if getattr(args, name) is not None:
+            raise CliError(f"--{name.replace('_', '-')} applies to --roa only")
+    args.duration = DEFAULT_DURATION_S if args.duration is None else args.duration
+
+
 def main(argv=None) -> int:
     """Entry point of ``nni-simulate``."""
     parser = build_parser()
@@ -460,6 +480,7 @@ def main(argv=None) -> int:
     def body():
         try:
             args = parser.parse_args(argv)
+            apply_mode_defaults(args)
             if args.cct:
                 if args.roa or args.plot:
                     raise CliError("--cct prints and writes --json only: it takes neither --roa nor --plot")

@@ -71,8 +71,10 @@ CONTROLLER_MODEL_KEYS = ("p_mech_pu", "p_max_pu", "inertia_h_s", "f0_hz")
 
 
 def _shown(value) -> str:
-    return "inf" if isinstance(value, float) and math.isinf(value) else f"{value:g}" if isinstance(
-        value, float) else str(value)
+    """A default as --help shows it: numbers in %g, inf as 'inf'."""
+    if isinstance(value, float):
+        return "inf" if math.isinf(value) else f"{value:g}"
+    return str(value)
 
 
 def add_model_options(parser: argparse.ArgumentParser) -> None:
