@@ -30,6 +30,9 @@ PURE_MODULES = [
     "nni_msgs_adapter.rerun_view",
     "nni_msgs_adapter.cli_support",
     "nni_msgs_adapter.loop_stats",
+    "nni_msgs_adapter.defaults",
+    "nni_msgs_adapter.palette",
+    "nni_battery_controller.options",
 ]
 
 PROBE = """

@@ -123,12 +123,14 @@ def test_no_battery_omega_is_invariant_and_its_cells_never_slip(paper_plant, pap
 
 
 def test_a_pole_slip_between_two_steps_is_caught(paper_plant, paper_controller):
-    """b = inf, released near pi: d peaks at 3.14217 rad 16 ms in, between the 10 ms steps (3.1398, 3.1414).
+    """b = inf, released toward pi: the rotor angle delta peaks at pi + 5e-4 rad 24.6 ms in, between the
+    10 ms steps (3.14097 and 3.14128 rad at their ends, both below pi).
 
-    The peak was found with solve_ivp at rtol 1e-12; the step ends alone would call this RETURNS.
+    The peak was found with solve_ivp at rtol 1e-12 (issue 10: the slip rule is now the rotor angle passing
+    +-pi, so the grazing case moved from d = pi to delta = pi); the step ends alone would miss it.
     """
     ctrl = paper_controller(math.inf)
-    outcome, decided_at = roa.classify(paper_plant, ctrl, [3.125884690321845], [2.05])
+    outcome, decided_at = roa.classify(paper_plant, ctrl, [2.1899076490095384], [2.1])
     assert outcome[0] == roa.SLIPS
     assert decided_at[0] <= 0.05
 

@@ -2,6 +2,11 @@
 
 By default runs the paper's case (H=4, D=0, P_M=0.8, P_max=1, f0=50 Hz,
 delta(0)=0.2 rad; tau=0.1, K=1, L=1.1, alpha=1) for b in {0, 0.2, 0.3, inf}.
+Defaults are the nodes' (the package config files). Each run gets two verdicts:
+in synchronism (the rotor angle never passed +-180 degrees, a pole slip) and
+settled (|delta - delta_bar| <= 0.02 rad for at least half a swing period at
+the end); stable means both. A run out of reach (estimated from duration, rate and
+the loop's fastest rate) is refused before any work.
 """
 
 from __future__ import annotations
@@ -9,29 +14,54 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 
 import numpy as np
 
-from nni_battery_controller.law import ControllerParams
-from nni_battery_controller.roa import RETURNS, STAYS, RoaGrid, report, sweep
-from nni_battery_controller.simulate import assess, simulate_continuous, simulate_sampled
+from nni_battery_controller.options import add_model_options, resolve_model
+from nni_battery_controller.roa import RETURNS, STAYS, STEP_S as ROA_STEP_S, RoaGrid, report, sweep
+from nni_battery_controller.simulate import (
+    CCT_TOLERANCE_S,
+    SETTLE_BAND_RAD,
+    assess,
+    critical_clearing_time,
+    equal_area_clearing_time_s,
+    fastest_rate_per_s,
+    simulate_continuous,
+    simulate_sampled,
+    verdict_text,
+)
 from nni_msgs_adapter.cli_support import (
     CliError,
     OneLineParser,
     atomic_output,
     battery_limit,
-    finite_float,
     float_within,
     positive_float,
     run_cli,
     writable_output,
 )
-from nni_plant_sim.model import SmibParams, critical_angles_rad, invariant_set_boundary
-from nni_plant_sim.scenarios import InitialAngle, MechanicalPowerStep, TransferLimitFault
+from nni_msgs_adapter.palette import colour_hex
+from nni_plant_sim.model import SmibParams, critical_angles_rad, invariant_set_boundary, restoring_power
+from nni_plant_sim.scenarios import TransferLimitFault
 
 PAPER_BATTERY_LIMITS = (0.0, 0.2, 0.3, math.inf)
+#: Output step of the continuous runs, s (as simulate_continuous's default).
+OUTPUT_STEP_S = 1e-3
+#: Largest RK4 step of the sampled runs' plant, s (as simulate_sampled's default).
+PLANT_STEP_S = 1e-3
+#: Bounds on one command's work, checked before any: samples kept (memory, ~100 B each),
+#: continuous work (duration x the loop's fastest rate, summed over the runs; 1e5 is
+#: some 10 s of integration) and sampled RK4 steps (about 2 us each).
+MAX_SAMPLES = 1_000_000
+MAX_CONTINUOUS_WORK = 1e5
+MAX_RK4_STEPS = 5_000_000
+#: RK4 diverges on the swing beyond h * rate of about 2.8; refused beyond this.
+RK4_STABLE_STEP_RATE = 2.5
+#: Exit status after SIGPIPE (a closed pipe, e.g. ``| head``), as a shell reports a process it killed.
+EXIT_BROKEN_PIPE = 141
 
 
 _sampling_rate_hz = float_within(10.0, 10_000.0, "Hz or 'continuous'")
@@ -44,6 +74,9 @@ def controller_rate(text: str):
 
 #: Largest --roa grid per axis: 1000 x 1000 cells hold about 0.2 GB of state during the sweep.
 ROA_GRID_MAX = 1000
+#: Defaults of the options that only --roa takes (None on the parser, so that one given without --roa is refused).
+ROA_DEFAULTS = {"roa_grid": 200, "roa_speed_max": 10.0}
+DEFAULT_DURATION_S = 10.0
 
 
 def roa_grid_size(text: str) -> int:
@@ -59,112 +92,192 @@ def roa_grid_size(text: str) -> int:
 
 def build_parser() -> OneLineParser:
     """The nni-simulate command line."""
-    parser = OneLineParser(prog="nni-simulate", description=__doc__)
+    parser = OneLineParser(prog="nni-simulate", description=__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--b", type=battery_limit, nargs="+", default=list(PAPER_BATTERY_LIMITS),
                         metavar="B", help="battery power limits in pu (numbers >= 0 or 'inf'); default: 0 0.2 0.3 inf")
-    parser.add_argument("--duration", type=positive_float, default=10.0, help="simulated seconds (default 10)")
+    parser.add_argument("--duration", type=positive_float, default=None,
+                        help=f"simulated seconds (default: {DEFAULT_DURATION_S:g}); --roa has its own horizon")
     parser.add_argument("--controller-rate", type=controller_rate, default=None,
                         help="'continuous' (default) or the sampled-data controller rate in Hz")
-    parser.add_argument("--json", type=writable_output, help="write the per-scenario summary as JSON here")
-    parser.add_argument("--plot", type=writable_output, help="write the paper's two figures as one PNG here")
+    parser.add_argument("--json", type=writable_output, help="write the per-scenario summary as JSON here (default: none)")
+    parser.add_argument("--plot", type=writable_output, help="write the paper's two figures as one PNG here (default: none)")
+    parser.add_argument("--cct", action="store_true",
+                        help="instead of one run per b: the critical clearing time of the transfer_limit_fault per b, "
+                             "by bisection to 1 ms (in synchronism over --duration), printed and in --json as cct_s")
     parser.add_argument("--roa", type=writable_output, metavar="PREFIX",
                         help="instead of the time-domain run: region of attraction of each b on a grid of initial "
-                             "conditions, written to PREFIX.png (basins, Omega, EAC) and PREFIX.json (basin areas)")
-    parser.add_argument("--roa-grid", type=roa_grid_size, default=200, metavar="N",
-                        help=f"--roa: N x N initial conditions (10 to {ROA_GRID_MAX}, default 200)")
-    parser.add_argument("--roa-speed-max", type=positive_float, default=10.0,
-                        help="--roa: initial speed deviations within +-this, rad/s (default 10); angles within +-pi")
-    plant = parser.add_argument_group("plant (per unit)")
-    plant.add_argument("--H", dest="inertia_h_s", type=finite_float, default=4.0, help="inertia constant H, s")
-    plant.add_argument("--D", dest="damping_pu", type=finite_float, default=0.0, help="damping D, pu/(rad/s)")
-    plant.add_argument("--P-M", dest="p_mech_pu", type=finite_float, default=0.8, help="mechanical power P_M, pu")
-    plant.add_argument("--P-max", dest="p_max_pu", type=finite_float, default=1.0, help="max transfer P_max, pu")
-    plant.add_argument("--f0", dest="f0_hz", type=finite_float, default=50.0, help="nominal frequency, Hz")
-    ctrl = parser.add_argument_group("controller")
-    ctrl.add_argument("--tau", dest="tau_s", type=finite_float, default=0.1, help="time constant tau, s")
-    ctrl.add_argument("--K", dest="gain_k", type=finite_float, default=1.0, help="gain K, pu/rad")
-    ctrl.add_argument("--L", dest="gain_l", type=finite_float, default=1.1, help="gain L, pu/rad (K < L)")
-    ctrl.add_argument("--alpha", type=finite_float, default=1.0, help="saturated decay factor alpha")
-    fault = parser.add_argument_group("fault scenario")
-    fault.add_argument("--scenario", choices=("initial_angle", "mechanical_step", "transfer_limit_fault"),
-                       default="initial_angle", help="default: the paper's initial angle jump")
-    fault.add_argument("--delta0", type=finite_float, default=0.2, help="initial_angle: delta(0), rad")
-    fault.add_argument("--speed0", type=finite_float, default=0.0, help="initial_angle: delta'(0), rad/s")
-    fault.add_argument("--step-p-mech", type=finite_float, default=0.95, help="mechanical_step: P_M during step, pu")
-    fault.add_argument("--step-duration", type=positive_float, default=math.inf,
-                       help="mechanical_step: step length, s (default: for good)")
-    fault.add_argument("--fault-p-max", type=finite_float, default=0.0, help="transfer_limit_fault: P_max in fault, pu")
-    fault.add_argument("--clearing-time", type=positive_float, default=0.1,
-                       help="transfer_limit_fault: clearing time, s")
+                             "conditions, written to PREFIX.png (basins, Omega, EAC) and PREFIX.json (basin areas); "
+                             "default: none")
+    parser.add_argument("--roa-grid", type=roa_grid_size, default=None, metavar="N",
+                        help=f"--roa: N x N initial conditions (10 to {ROA_GRID_MAX}, default: {ROA_DEFAULTS['roa_grid']})")
+    parser.add_argument("--roa-speed-max", type=positive_float, default=None,
+                        help=f"--roa: initial speed deviations within +-this, rad/s (default: "
+                             f"{ROA_DEFAULTS['roa_speed_max']:g}); angles within +-pi")
+    add_model_options(parser)
     return parser
 
 
-def scenario_from_args(args):
-    """The fault scenario the options describe."""
-    if args.scenario == "mechanical_step":
-        return MechanicalPowerStep(args.step_p_mech, args.step_duration)
-    if args.scenario == "transfer_limit_fault":
-        return TransferLimitFault(args.fault_p_max, args.clearing_time)
-    return InitialAngle(args.delta0, args.speed0)
+def controller_text(rate_hz) -> str:
+    """``continuous`` or ``sampled at 50 Hz``: the controller a run used."""
+    return "continuous" if rate_hz is None else f"sampled at {rate_hz:g} Hz"
+
+
+def check_work(plant: SmibParams, ctrls, duration_s: float, rate_hz, runs_per_b: int = 1) -> None:
+    """CliError, before any work, when the runs would be out of reach in time or memory.
+
+    Estimated from the duration, the controller rate and the loop's fastest
+    rate (:func:`fastest_rate_per_s`): samples kept, continuous integration
+    work, sampled RK4 steps, and RK4's stability on the plant's swing.
+    """
+    samples = duration_s / (OUTPUT_STEP_S if rate_hz is None else 1.0 / rate_hz)
+    if samples > MAX_SAMPLES:
+        raise CliError(f"out of reach: --duration {duration_s:g} s keeps {samples:.3g} samples per run "
+                       f"(limit {MAX_SAMPLES:g}); shorten --duration")
+    if rate_hz is None:
+        rates = [fastest_rate_per_s(plant, ctrl) for ctrl in ctrls]
+        work = runs_per_b * duration_s * sum(rates)
+        if work > MAX_CONTINUOUS_WORK:
+            raise CliError(f"out of reach: the loop's fastest rate is {max(rates):.3g}/s (1/tau, alpha/K, "
+                           f"sqrt((P_max + L)/M) or D/M), so {duration_s:g} s continuous needs about {work:.3g} "
+                           f"integrator steps (limit {MAX_CONTINUOUS_WORK:g}); shorten --duration or use "
+                           f"--controller-rate")
+        return
+    step = min(PLANT_STEP_S, 1.0 / rate_hz)
+    swing = math.sqrt((abs(plant.p_max_pu) + max(ctrl.gain_l for ctrl in ctrls)) / plant.inertia_m)
+    if step * swing > RK4_STABLE_STEP_RATE:
+        raise CliError(f"out of reach: the swing's rate {swing:.3g}/s is too fast for the plant's {step:g} s RK4 "
+                       f"step (it would diverge); check --H, --P-max, --L")
+    steps = runs_per_b * len(ctrls) * duration_s / step
+    if steps > MAX_RK4_STEPS:
+        raise CliError(f"out of reach: {steps:.3g} RK4 steps (limit {MAX_RK4_STEPS:g}); shorten --duration")
+
+
+def simulate(plant, ctrl, scenario, duration_s, rate_hz):
+    """One run of the continuous law or of the sampled law at ``rate_hz``."""
+    if rate_hz is None:
+        return simulate_continuous(plant, ctrl, scenario, duration_s, OUTPUT_STEP_S)
+    return simulate_sampled(plant, ctrl, scenario, duration_s, rate_hz, PLANT_STEP_S)
 
 
 def format_table(outcomes) -> str:
-    """A fixed-width table of outcomes, one row per battery limit."""
+    """A fixed-width table of outcomes (``Outcome.to_json`` dicts), one row per battery limit."""
 
-    def num(value, fmt="{:.4f}"):
+    def num(value, fmt="{:.3f}"):
         return "-" if value is None else fmt.format(value)
 
-    header = f"{'b (pu)':>7} {'stable':>7} {'final d (rad)':>14} {'max|d| (rad)':>13} " \
-             f"{'max|P_ST| (pu)':>15} {'last sat (s)':>13} {'settle (s)':>11}"
-    rows = [header, "-" * len(header)]
+    header = (f"{'b (pu)':>7} {'in sync':>7} {'settled':>7} {'max|d| (rad)':>13} {'max|P_ST| (pu)':>15} "
+              f"{'last sat (s)':>13} {'settle (s)':>10}  verdict")
+    rows = [header, "-" * (len(header) + 40)]
     for o in outcomes:
+        b = math.inf if o["b"] == "inf" else o["b"]
+        settled = "-" if o["too_short_to_judge"] else ("yes" if o["settled"] else "NO")
         rows.append(
-            f"{o.b:>7g} {('yes' if o.stable else 'NO'):>7} {o.final_angle_dev_rad:>14.4g} "
-            f"{o.max_abs_angle_dev_rad:>13.4f} {o.max_abs_battery_power_pu:>15.4f} "
-            f"{num(o.last_saturated_s, '{:.3f}'):>13} {num(o.settling_time_s, '{:.3f}'):>11}"
+            f"{b:>7g} {('yes' if o['in_synchronism'] else 'NO'):>7} {settled:>7} "
+            f"{o['max_abs_angle_dev_rad']:>13.4f} {o['max_abs_battery_power_pu']:>15.4f} "
+            f"{num(o['last_saturated_s']):>13} {num(o['settling_time_s']):>10}  {verdict_text(o)}"
         )
     return "\n".join(rows)
 
 
-def plot_runs(trajectories, path) -> None:
-    """The paper's figures 3 and 4: angle deviation (all runs) and battery power (b > 0)."""
-    import matplotlib
+def verdict_legend(outcomes) -> str:
+    """The line under a table saying what its verdict words mean."""
+    hold = outcomes[0]["settle_hold_s"] if outcomes else math.nan
+    return (f"in sync: the rotor angle never passed +-180 degrees (a pole slip); settled: |d| <= "
+            f"{SETTLE_BAND_RAD:g} rad for at least {hold:g} s (half a swing period) at the end; stable: both")
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    fig, (ax_angle, ax_power) = plt.subplots(2, 1, figsize=(8, 7), sharex=True, constrained_layout=True)
-    for index, traj in enumerate(trajectories):
+def fault_interval(scenario: dict, end_s: float):
+    """``(start, end)`` s of the scenario's disturbance on the run's time axis, or None (cleared before t = 0)."""
+    if scenario["name"] == "transfer_limit_fault":
+        return 0.0, min(scenario["clearing_time_s"], end_s)
+    if scenario["name"] == "mechanical_step":
+        return 0.0, min(scenario["step_duration_s"], end_s)
+    return None
+
+
+def scenario_title(scenario: dict) -> str:
+    """The scenario and its values, for a figure title."""
+    if scenario["name"] == "transfer_limit_fault":
+        return (f"transfer-limit fault: P_max = {scenario['fault_p_max_pu']:g} pu, cleared at "
+                f"{scenario['clearing_time_s']:g} s (shaded)")
+    if scenario["name"] == "mechanical_step":
+        if math.isinf(scenario["step_duration_s"]):
+            return f"mechanical power step to {scenario['step_p_mech_pu']:g} pu for good (the equilibrium moves)"
+        return f"mechanical power step to {scenario['step_p_mech_pu']:g} pu for {scenario['step_duration_s']:g} s (shaded)"
+    return (f"initial angle: delta(0) = {scenario['delta0_rad']:g} rad, delta'(0) = {scenario['speed0_rad_s']:g} "
+            f"rad/s (fault cleared before t = 0)")
+
+
+def runs_figure(trajectories, outcomes, scenario: dict, controller: str, mode: str):
+    """The paper's figures 3 and 4 (angle deviation of every run, battery power for b > 0) as a Figure.
+
+    The title names the scenario (the fault interval shaded), the controller
+    (continuous or its rate) and the mode; each legend entry names b and the
+    run's verdict. One colour per b (:func:`nni_msgs_adapter.palette.colour_hex`).
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(8, 7.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax_angle, ax_power = fig.subplots(2, 1, sharex=True)
+    fig.suptitle(f"SMIB with battery control: {scenario_title(scenario)}\n"
+                 f"controller {controller}, {mode}", fontsize=10)
+    for traj, outcome in zip(trajectories, outcomes):
         b = traj.ctrl.battery_limit_pu
-        label = f"b = {b:g}" if b > 0 else "b = 0 (no battery)"
-        color = f"C{index}"  # one colour per run in both panels
+        name = f"b = {b:g}" if b > 0 else "b = 0 (no battery)"
+        label, color = f"{name}: {verdict_text(outcome)}", colour_hex(b)
         ax_angle.plot(traj.t_s, traj.angle_dev_rad, label=label, color=color)
         if b > 0:
-            ax_power.plot(traj.t_s, traj.battery_power_pu, label=label, color=color)
+            ax_power.plot(traj.t_s, traj.battery_power_pu, label=name, color=color, drawstyle=(
+                "steps-post" if controller != "continuous" else "default"))
+    end = max(float(traj.t_s[-1]) for traj in trajectories)
+    interval = fault_interval(scenario, end)
+    for ax in (ax_angle, ax_power):
+        if interval is not None and interval[1] > interval[0]:
+            ax.axvspan(*interval, color="red", alpha=0.12, lw=0, label="fault" if ax is ax_angle else None)
+        ax.grid(True, alpha=0.3)
     ax_angle.set_ylim(-1.5, 3.5)
     ax_angle.axhline(math.pi - 2 * trajectories[0].plant.delta_bar_rad, color="grey", ls=":", lw=1,
                      label="unstable equilibrium pi - 2 delta_bar")
     ax_angle.set_ylabel("angle deviation delta - delta_bar (rad)")
-    ax_angle.set_title("Angle deviation without (b = 0) and with battery control")
-    ax_angle.legend(loc="upper right")
+    ax_angle.set_title("Angle deviation without (b = 0) and with battery control", fontsize=10)
+    ax_angle.legend(loc="upper right", fontsize=8)
     ax_power.set_ylabel("battery power change P_ST (pu)")
     ax_power.set_xlabel("time after the fault (s)")
-    ax_power.set_title("Battery power output change")
-    ax_power.legend(loc="upper right")
-    for ax in (ax_angle, ax_power):
-        ax.grid(True, alpha=0.3)
+    ax_power.set_title("Battery power output change", fontsize=10)
+    if any(traj.ctrl.battery_limit_pu > 0 for traj in trajectories):
+        ax_power.legend(loc="upper right", fontsize=8)
+    return fig
+
+
+def save_png(fig, path) -> None:
+    """Write ``fig`` as a PNG (atomically), its title also in the PNG's Title text chunk."""
+    title = fig.get_suptitle()
     with atomic_output(path, "wb") as handle:
-        fig.savefig(handle, format="png", dpi=120)
-    plt.close(fig)
+        fig.savefig(handle, format="png", dpi=120, metadata={"Title": title.replace("\n", "; ")})
 
 
-def run_roa(args, plant: SmibParams) -> int:
+def plot_runs(trajectories, outcomes, path, scenario: dict, controller: str, mode: str) -> None:
+    """:func:`runs_figure` written to ``path`` as PNG."""
+    save_png(runs_figure(trajectories, outcomes, scenario, controller, mode), path)
+
+
+def run_roa(args, model, plant: SmibParams) -> int:
     """``--roa``: classify the grid for each b, print basin areas, write PREFIX.json and PREFIX.png."""
-    if args.controller_rate is not None or args.scenario != "initial_angle":
+    if args.controller_rate is not None or model.scenario_name != "initial_angle":
         raise CliError("--roa sweeps initial conditions of the continuous law after the fault has cleared: "
                        "it takes neither --controller-rate nor --scenario")
+    for flag in ("--plot", "--json"):
+        if getattr(args, flag[2:]):
+            raise CliError(f"--roa writes PREFIX.json and PREFIX.png: it takes no {flag}")
     grid = RoaGrid(-math.pi, math.pi, -args.roa_speed_max, args.roa_speed_max, args.roa_grid, args.roa_grid)
-    ctrls = [ControllerParams(args.tau_s, args.gain_k, args.gain_l, args.alpha, b) for b in args.b]
+    ctrls = [model.controller_params(b) for b in args.b]
+    fastest = max(fastest_rate_per_s(plant, ctrl) for ctrl in ctrls)
+    if fastest * ROA_STEP_S > RK4_STABLE_STEP_RATE:
+        raise CliError(f"out of reach: the loop's fastest rate {fastest:.3g}/s is too fast for the sweep's "
+                       f"{ROA_STEP_S:g} s RK4 step (it would diverge)")
 
     def progress(index, total, basin):
         print(f"nni-simulate: region of attraction {index + 1}/{total} (b = {basin.b:g}): "
@@ -182,68 +295,68 @@ def run_roa(args, plant: SmibParams) -> int:
 
     basins = sweep(plant, ctrls, grid, progress=progress, on_check=on_check)
     summary = report(plant, ctrls, grid, basins)
-    summary["plot_shows"] = ("filled: initial conditions that return to equilibrium; dashed outline: those that "
+    summary["plot_shows"] = ("filled: initial conditions that return to equilibrium; hatched: those that "
                              "stay in synchronism without returning (no battery, D = 0)")
     print(f"Region of attraction, {grid.n_angle} x {grid.n_speed} grid, x3(0) = 0 "
           f"(delta_bar = {plant.delta_bar_rad:.4f} rad, "
-          f"Omega: {summary['invariant_set']['area_rad2_per_s']:.3f} rad^2/s)")
+          f"Omega: {summary['invariant_set']['area_rad2_per_s']:.3f} rad^2/s); "
+          f"a pole slip: the rotor angle passing +-180 degrees")
     print(f"{'b (pu)':>7} {'returns (rad^2/s)':>18} {'fraction':>9} {'in sync (rad^2/s)':>18} {'undecided':>10}")
     for basin, item in zip(basins, summary["basins"]):
         print(f"{basin.b:>7g} {item['returns_area_rad2_per_s']:>18.3f} {item['returns_fraction']:>9.4f} "
               f"{item['synchronism_area_rad2_per_s']:>18.3f} {item['cells']['undecided']:>10}")
-    png = plot_roa(plant, grid, basins, (args.delta0 - plant.delta_bar_rad, args.speed0))
+    marked = (model.plant["delta0_rad"] - plant.delta_bar_rad, model.plant["speed0_rad_s"])
+    fig = roa_figure(plant, grid, basins, marked, model.header())
     json_path, png_path = (args.roa.with_name(args.roa.name + suffix) for suffix in (".json", ".png"))
     with atomic_output(json_path) as handle:
         json.dump(summary, handle, indent=2)
         handle.write("\n")
-    with atomic_output(png_path, "wb") as handle:
-        handle.write(png)
+    save_png(fig, png_path)
     print(f"wrote {json_path} and {png_path}")
     return 0
 
 
-def plot_roa(plant: SmibParams, grid: RoaGrid, basins, marked_state) -> bytes:
-    """PNG of the basins of all b overlaid in the (d0, d0') plane, with Omega and the EAC's critical angles.
+def roa_figure(plant: SmibParams, grid: RoaGrid, basins, marked_state, model_text: str):
+    """The basins of all b overlaid in the (d0, d0') plane, with Omega and the EAC's critical angles, as a Figure.
 
-    ``marked_state`` (angle deviation rad, speed rad/s) is starred: the run's
-    --delta0 / --speed0, by default the paper's case.
+    Each basin is filled in its b's colour (the one every figure uses), the
+    largest first so that each smaller one shows as its own band (the basins
+    nest); where a basin only stays in synchronism (no battery, D = 0) it is
+    hatched. Omega is a thin dotted outline drawn over them, so the b = 0
+    basin, which Omega nearly equals, shows through. ``marked_state`` (angle
+    deviation rad, speed rad/s) is starred: the run's --delta0 / --speed0.
     """
-    import io
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.colors import to_rgb
+    from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
     # Cell centres, plus the grid's edges (with the edge cells' outcome) so that fills reach the axes.
     angles = np.concatenate(([grid.angle_min_rad], grid.angle_centres_rad, [grid.angle_max_rad]))
     speeds = np.concatenate(([grid.speed_min_rad_s], grid.speed_centres_rad_s, [grid.speed_max_rad_s]))
-    fig, ax = plt.subplots(figsize=(9, 8.5), layout="constrained")
+    fig = Figure(figsize=(9, 8.5), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
     handles = []
-    # Largest basin first, opaque, so that each smaller one drawn over it shows as
-    # its own band (the basins nest); each keeps its outline in the --plot colour.
-    order = sorted(range(len(basins)), key=lambda i: -basins[i].count(RETURNS))
+    order = sorted(range(len(basins)), key=lambda i: -(basins[i].count(RETURNS) + basins[i].count(STAYS)))
     for index in order:
-        basin, color = basins[index], f"C{index}"
+        basin = basins[index]
+        color = colour_hex(basin.b)
         fill = tuple(0.45 * c + 0.55 for c in to_rgb(color))  # the colour, lightened
         name = "no battery" if basin.b == 0 else ("unlimited" if math.isinf(basin.b) else "")
         label = f"b = {basin.b:g}" + (f" ({name})" if name else "")
         outcome = np.pad(basin.outcome, 1, mode="edge")
-        returns = (outcome == RETURNS).astype(float)
-        if returns.any():
-            ax.contourf(angles, speeds, returns, levels=[0.5, 1.5], colors=[fill])
-            ax.contour(angles, speeds, returns, levels=[0.5], colors=[color], linewidths=1.5)
-            handles.append(Patch(facecolor=fill, edgecolor=color, label=f"{label}: returns to equilibrium"))
-        stays = (outcome == STAYS).astype(float)
-        if stays.any():
-            ax.contour(angles, speeds, stays, levels=[0.5], colors=[color], linewidths=2.0, linestyles="--")
-            handles.append(Line2D([], [], color=color, ls="--", lw=2.0,
-                                  label=f"{label}: stays in synchronism, never returns (D = 0: oscillates)"))
+        for code, hatch, words in ((RETURNS, None, "returns to equilibrium"),
+                                   (STAYS, "//", "stays in synchronism, never returns (D = 0: oscillates)")):
+            region = (outcome == code).astype(float)
+            if region.any():
+                ax.contourf(angles, speeds, region, levels=[0.5, 1.5], colors=[fill],
+                            hatches=[hatch])
+                ax.contour(angles, speeds, region, levels=[0.5], colors=[color], linewidths=1.5)
+                handles.append(Patch(facecolor=fill, edgecolor=color, hatch=hatch, label=f"{label}: {words}"))
     omega = invariant_set_boundary(plant)
-    handles += ax.plot(omega[:, 0], omega[:, 1], color="black", lw=1.5,
+    handles += ax.plot(omega[:, 0], omega[:, 1], color="black", lw=0.8, ls=":",
                        label="invariant set Omega: W <= c, |d| <= pi - 2 delta_bar")
     low, high = (angle - plant.delta_bar_rad for angle in critical_angles_rad(plant))
     handles += ax.plot([low, high], [0.0, 0.0], color="black", lw=3.0, marker="|", markersize=14,
@@ -251,18 +364,113 @@ def plot_roa(plant: SmibParams, grid: RoaGrid, basins, marked_state) -> bytes:
     handles += ax.plot([marked_state[0]], [marked_state[1]], "k*", markersize=11,
                        label=f"delta(0) = {marked_state[0] + plant.delta_bar_rad:g} rad, "
                              f"d'(0) = {marked_state[1]:g} rad/s (--delta0, --speed0)")
+    handles.append(Line2D([], [], ls="none", label="outside every basin: a pole slip (rotor angle passes +-180 deg)"))
     ax.set_xlim(grid.angle_min_rad, grid.angle_max_rad)
     ax.set_ylim(grid.speed_min_rad_s, grid.speed_max_rad_s)
     ax.set_xlabel("initial angle deviation d0 = delta(0) - delta_bar (rad)")
     ax.set_ylabel("initial speed deviation d0' = omega(0) - omega0 (rad/s)")
-    ax.set_title("Region of attraction of the battery-controlled generator (x3(0) = 0)\n"
-                 "outside a basin the angle deviation passes pi (a pole slip)")
+    fig.suptitle("Region of attraction of the battery-controlled generator: controller continuous, offline, "
+                 "x3(0) = 0,\npost-fault network (the fault has cleared at t = 0); "
+                 + model_text.split("; ", 1)[1], fontsize=9)
     fig.legend(handles=handles, loc="outside lower center", ncol=2, fontsize=8)
     ax.grid(True, alpha=0.3)
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=120)
-    plt.close(fig)
-    return buffer.getvalue()
+    return fig
+
+
+def run_cct(args, model, plant: SmibParams) -> int:
+    """``--cct``: critical clearing time of the transfer-limit fault per b; table, and JSON with cct_s."""
+    ctrls = [model.controller_params(b) for b in args.b]
+    runs = 2 * math.ceil(math.log2(args.duration / CCT_TOLERANCE_S)) + 2
+    check_work(plant, ctrls, args.duration, args.controller_rate, runs_per_b=runs)
+    fault_p_max = model.plant["fault_p_max_pu"]
+    print(f"Critical clearing time, transfer_limit_fault with P_max = {fault_p_max:g} pu during the fault, "
+          f"controller {controller_text(args.controller_rate)}: the longest clearing time that keeps the rotor "
+          f"angle within +-180 degrees over {args.duration:g} s")
+    print(f"bisection to {CCT_TOLERANCE_S * 1e3:g} ms: bracket [0, {CCT_TOLERANCE_S:g}] s, upper end doubled until "
+          f"a run slips (up to {args.duration:g} s), then halved")
+    print(f"{'b (pu)':>7} {'CCT (s)':>9} {'slips at (s)':>13} {'runs':>5}")
+    results = []
+    for ctrl in ctrls:
+        def in_sync(clearing_s, ctrl=ctrl):
+            scenario = TransferLimitFault(fault_p_max, clearing_s)
+            return assess(simulate(plant, ctrl, scenario, args.duration, args.controller_rate)).in_synchronism
+
+        result = critical_clearing_time(in_sync, ctrl.battery_limit_pu, args.duration)
+        results.append(result)
+        slips = "-" if result.slips_s is None else f"{result.slips_s:.4f}"
+        note = "" if result.slips_s is not None else f"  (no slip for any clearing time up to {args.duration:g} s)"
+        print(f"{result.b:>7g} {result.cct_s:>9.4f} {slips:>13} {result.runs:>5}{note}", flush=True)
+    closed_form = None
+    if fault_p_max == 0.0 and plant.damping_pu == 0.0:
+        closed_form = round(equal_area_clearing_time_s(plant), 6)
+        print(f"equal-area closed form for b = 0 (bolted fault, D = 0): {closed_form:.4f} s")
+    if args.json:
+        with atomic_output(args.json) as handle:
+            json.dump({"cct": [r.to_json() for r in results], "tolerance_s": CCT_TOLERANCE_S,
+                       "duration_s": args.duration, "controller": controller_text(args.controller_rate),
+                       "scenario": {"name": "transfer_limit_fault", "fault_p_max_pu": fault_p_max},
+                       "equal_area_cct_s": closed_form}, handle, indent=2)
+            handle.write("\n")
+        print(f"wrote {args.json}")
+    return 0
+
+
+def permanent_step_note(model, plant: SmibParams) -> str:
+    """What a permanent mechanical power step does, with the new equilibrium angles in closed form."""
+    step, c = model.plant["step_p_mech_pu"], model.controller
+    # Unsaturated steady state: x3 = K d, P_ST = w = -(L - K) d - g(d); g(d) cancels the change of P_E,
+    # so P_M,step - P_M = (L - K) d.
+    with_battery = (step - plant.p_mech_pu) / (c["gain_l"] - c["gain_k"])
+    battery = -(c["gain_l"] - c["gain_k"]) * with_battery - float(restoring_power(with_battery, plant))
+    without = (math.asin(step / plant.p_max_pu) - plant.delta_bar_rad) if step < plant.p_max_pu else math.nan
+    return (f"the mechanical power step is permanent: the equilibrium moves away from delta_bar, which the "
+            f"controller's model keeps. With the battery unsaturated the rotor settles at d = (P_M,step - P_M)/(L - K)"
+            f" = {with_battery:.3f} rad (the law's g(d) cancels the change of electrical power, only L - K holds the "
+            f"rotor) with the battery at P_ST = {battery:+.3f} pu for as long as the step lasts (if b allows it, "
+            f"else it saturates); without battery the "
+            f"new equilibrium is d = asin(P_M,step/P_max) - delta_bar = {without:.3f} rad")
+
+
+def run_time_domain(args, model, plant: SmibParams) -> int:
+    """One run per b: the table, --json and --plot."""
+    scenario = model.scenario()
+    ctrls = [model.controller_params(b) for b in args.b]
+    check_work(plant, ctrls, args.duration, args.controller_rate)
+    trajectories = [simulate(plant, ctrl, scenario, args.duration, args.controller_rate) for ctrl in ctrls]
+    outcomes = [assess(traj, scenario=scenario).to_json() for traj in trajectories]
+    print(f"SMIB, {model.header()}")
+    print(f"controller {controller_text(args.controller_rate)}, {args.duration:g} s "
+          f"(delta_bar = {plant.delta_bar_rad:.4f} rad)")
+    print(format_table(outcomes))
+    print(verdict_legend(outcomes))
+    if any(o["equilibrium_moved"] for o in outcomes):
+        print(permanent_step_note(model, plant))
+    if args.json:
+        with atomic_output(args.json) as handle:
+            json.dump({"scenario": model.scenario_values(), "controller": controller_text(args.controller_rate),
+                       "scenarios": outcomes}, handle, indent=2)
+            handle.write("\n")
+        print(f"wrote {args.json}")
+    if args.plot:
+        plot_runs(trajectories, outcomes, args.plot, model.scenario_values(),
+                  controller_text(args.controller_rate), "offline")
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def apply_mode_defaults(args) -> None:
+    """Fill the defaults of --duration and the --roa options; CliError for one given where it does not apply."""
+    if args.roa:
+        if args.duration is not None:
+            raise CliError("--roa integrates each initial condition until decided (up to its own horizon): "
+                           "it takes no --duration")
+        for name, value in ROA_DEFAULTS.items():
+            setattr(args, name, value if getattr(args, name) is None else getattr(args, name))
+        return
+    for name in ROA_DEFAULTS:
+        if getattr(args, name) is not None:
+            raise CliError(f"--{name.replace('_', '-')} applies to --roa only")
+    args.duration = DEFAULT_DURATION_S if args.duration is None else args.duration
 
 
 def main(argv=None) -> int:
@@ -270,35 +478,37 @@ def main(argv=None) -> int:
     parser = build_parser()
 
     def body():
-        args = parser.parse_args(argv)
-        plant = SmibParams(args.inertia_h_s, args.damping_pu, args.p_mech_pu, args.p_max_pu, args.f0_hz)
-        if args.roa:
-            return run_roa(args, plant)
-        scenario = scenario_from_args(args)
-        trajectories = []
-        for b in args.b:
-            ctrl = ControllerParams(args.tau_s, args.gain_k, args.gain_l, args.alpha, b)
-            if args.controller_rate is None:
-                trajectories.append(simulate_continuous(plant, ctrl, scenario, args.duration))
+        try:
+            args = parser.parse_args(argv)
+            apply_mode_defaults(args)
+            if args.cct:
+                if args.roa or args.plot:
+                    raise CliError("--cct prints and writes --json only: it takes neither --roa nor --plot")
+                if args.scenario not in (None, "transfer_limit_fault") or args.clearing_time_s is not None:
+                    raise CliError("--cct searches the clearing time of the transfer_limit_fault: it takes no "
+                                   "--scenario or --clearing-time")
+                args.scenario = "transfer_limit_fault"
+            model = resolve_model(args, parser.prog)
+            plant = model.smib()
+            if args.roa:
+                status = run_roa(args, model, plant)
+            elif args.cct:
+                status = run_cct(args, model, plant)
             else:
-                trajectories.append(simulate_sampled(plant, ctrl, scenario, args.duration, args.controller_rate))
-        outcomes = [assess(traj) for traj in trajectories]
-        rate = "continuous" if args.controller_rate is None else f"{args.controller_rate:g} Hz"
-        print(f"SMIB, {args.scenario}, controller {rate}, {args.duration:g} s "
-              f"(delta_bar = {plant.delta_bar_rad:.4f} rad)")
-        print(format_table(outcomes))
-        if args.json:
-            with atomic_output(args.json) as handle:
-                json.dump({"scenarios": [o.to_json() for o in outcomes]}, handle, indent=2)
-                handle.write("\n")
-            print(f"wrote {args.json}")
-        if args.plot:
-            plot_runs(trajectories, args.plot)
-            print(f"wrote {args.plot}")
-        return 0
+                status = run_time_domain(args, model, plant)
+            sys.stdout.flush()  # here, so that a closed pipe is met inside, not at exit
+            return status
+        except BrokenPipeError:
+            # The reader went away (``| head``): nothing more to say, and nothing at exit either.
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return EXIT_BROKEN_PIPE
+        except RuntimeError as exc:  # the integration gave up (too stiff, or chattering at |w| = b)
+            raise CliError(str(exc)) from None
+        except KeyboardInterrupt:
+            print(f"{parser.prog}: interrupted", file=sys.stderr)
+            return 130
 
     return run_cli(body, parser.prog)
-
 
 if __name__ == "__main__":
     sys.exit(main())

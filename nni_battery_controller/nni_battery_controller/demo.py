@@ -25,7 +25,8 @@ import numpy as np
 
 from nni_battery_controller.cli import PAPER_BATTERY_LIMITS, plot_runs
 from nni_battery_controller.law import ControllerParams
-from nni_battery_controller.simulate import Trajectory, assess
+from nni_battery_controller.options import add_model_options, resolve_model
+from nni_battery_controller.simulate import Trajectory, assess, verdict_text
 from nni_msgs_adapter.cli_support import (
     CliError,
     OneLineParser,
@@ -55,14 +56,15 @@ def build_parser() -> OneLineParser:
                         help="lockstep: simulated /clock, deterministic, fast (default); realtime: wall clock")
     parser.add_argument("--b", type=battery_limit, nargs="+", default=list(PAPER_BATTERY_LIMITS), metavar="B",
                         help="battery limits in pu, one run each (default: 0 0.2 0.3 inf)")
-    parser.add_argument("--duration", type=positive_float, default=10.0, help="simulated seconds per run")
+    parser.add_argument("--duration", type=positive_float, default=10.0, help="simulated seconds per run (default: 10)")
     parser.add_argument("--rate", type=float_within(10.0, 1000.0, "frames/s"), default=50.0, help="PMU reporting rate, frames/s (default 50)")
-    parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (created)")
+    parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder, created (default: out/demo)")
     parser.add_argument("--rerun", nargs="+", metavar=("SINK", "PATH"), default=None,
                         help="stream the runs live to Rerun: 'save PATH' (.rrd), 'serve' (web viewer on this "
-                             "machine, kept up until Ctrl-C) or 'spawn' (native viewer, needs a display)")
+                             "machine, kept up until Ctrl-C) or 'spawn' (native viewer, needs a display); default: none")
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
+    add_model_options(parser)
     return parser
 
 
@@ -168,10 +170,10 @@ def run_one(args, b: float, env: dict, out: Path) -> tuple[dict, Trajectory]:
         procs.start("mcap_logger", "nni_msgs_adapter.mcap_logger",
                     {"output_path": str(recording), "discovery_period_s": 0.1})
         procs.start("controller", "nni_battery_controller.controller_node",
-                    {"battery_limit_pu": b, "sample_rate_hz": args.rate})
+                    {**args.model.controller_node_parameters(), "battery_limit_pu": b, "sample_rate_hz": args.rate})
         plant = procs.start("plant", "nni_plant_sim.plant_node",
-                            {"mode": args.mode, "duration_s": args.duration, "pmu_rate_hz": args.rate,
-                             "wait_for_subscribers": 2})
+                            {**args.model.plant_node_parameters(), "mode": args.mode, "duration_s": args.duration,
+                             "pmu_rate_hz": args.rate, "wait_for_subscribers": 2})
         limit = 60.0 + (args.duration if args.mode == "realtime" else args.duration * 2)
         try:
             status = plant.wait(timeout=limit)
@@ -185,8 +187,9 @@ def run_one(args, b: float, env: dict, out: Path) -> tuple[dict, Trajectory]:
             raise CliError(f"the logger failed: {procs.output('mcap_logger').strip()[-300:]}")
     wall_s = time.monotonic() - started
     counts = logger_counts(procs.output("mcap_logger"))
-    traj, diag = trajectory_from_recording(recording, SmibParams(), ControllerParams(battery_limit_pu=b))
-    outcome = assess(traj).to_json()
+    # Assessed with the very model and scenario the nodes ran with.
+    traj, diag = trajectory_from_recording(recording, args.model.smib(), args.model.controller_params(b))
+    outcome = assess(traj, scenario=args.model.scenario()).to_json()
     outcome.update({
         "mode": args.mode, "rate_hz": args.rate, "recording": str(recording), "wall_time_s": wall_s,
         "samples": int(diag.get("samples", 0)),
@@ -206,7 +209,7 @@ def run_all(args, env: dict) -> tuple[list[dict], list[Trajectory]]:
         runs.append(run)
         trajectories.append(traj)
         lat = run["latency_ms"]
-        print(f"  b = {b:<5g} {'stable' if run['stable'] else 'LOST SYNCHRONISM':<17} "
+        print(f"  b = {b:<5g} {verdict_text(run):<34} "
               f"max|d| {run['max_abs_angle_dev_rad']:8.4f} rad  max|P_ST| {run['max_abs_battery_power_pu']:.4f} pu"
               f"  latency p50/p99/max {lat.get('p50', math.nan):.2f}/{lat.get('p99', math.nan):.2f}/"
               f"{lat.get('max', math.nan):.2f} ms  dropped {run['dropped_samples']}  late {run['late_samples']}"
@@ -238,6 +241,8 @@ def main(argv=None) -> int:
 
     def body():
         args = parser.parse_args(argv)
+        args.model = resolve_model(args, parser.prog)
+        args.model.validate()
         sink = rerun_sink(args.rerun) if args.rerun else None
         domain = args.domain_id if args.domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
         if not 0 <= domain <= 232:
@@ -248,6 +253,7 @@ def main(argv=None) -> int:
         env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain),
                    PYTHONUNBUFFERED="1")
         print(f"nni-demo: {args.mode}, {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}")
+        print(f"  {args.model.header()}")
         with Processes(env, args.out) as viewer:
             if sink:
                 viewer.start("rerun_bridge", "nni_msgs_adapter.rerun_bridge", sink)
@@ -261,7 +267,8 @@ def main(argv=None) -> int:
             json.dump({"scenarios": runs}, handle, indent=2)
             handle.write("\n")
         figure = args.out / "figures.png"
-        plot_runs(trajectories, figure)
+        plot_runs(trajectories, runs, figure, args.model.scenario_values(), f"sampled at {args.rate:g} Hz",
+                  args.mode)
         print(f"wrote {summary}, {figure} and {len(runs)} recording(s) in {args.out}")
         return 0
 

@@ -156,6 +156,10 @@ class SampledController:
         # One period of each mode's exact solution: x3 decays by these factors.
         self._decay_unsaturated = math.exp(-self.period_s / self.ctrl.tau_s)
         self._decay_saturated = math.exp(-self.ctrl.alpha * self.period_s / self.ctrl.gain_k)
+        # g(d) = P_max (sin(delta_bar) - sin(d + delta_bar)): the constants, computed once (asin included).
+        self._delta_bar = self.plant.delta_bar_rad
+        self._p_max = self.plant.p_max_pu
+        self._sin_delta_bar = math.sin(self._delta_bar)
 
     def reset(self) -> None:
         """Back to the pre-fault steady state x3 = 0 (used when data resumes after a gap)."""
@@ -185,7 +189,9 @@ class SampledController:
         if not math.isfinite(angle_dev_rad):
             raise ValueError(f"angle deviation must be finite, got {angle_dev_rad}")
         b = self.ctrl.battery_limit_pu
-        w = float(saturation_input(self.x3, angle_dev_rad, self.ctrl, self.plant))
+        # saturation_input's w = x3 - L d - g(d), on Python floats (math.sin, constants from __post_init__).
+        w = self.x3 - self.ctrl.gain_l * angle_dev_rad - self._p_max * (
+            self._sin_delta_bar - math.sin(angle_dev_rad + self._delta_bar))
         saturated = abs(w) >= b
         if saturated:
             next_x3 = self._decay_saturated * self.x3

@@ -7,8 +7,10 @@ value) gets one outcome:
 * ``RETURNS``: the trajectory provably returns to the equilibrium (0, 0, 0);
 * ``STAYS``: it provably stays in synchronism but does not return (b = 0 with
   D = 0: the undamped, uncontrolled machine oscillates forever inside Omega);
-* ``SLIPS``: the angle deviation exceeded half a turn, |d| > pi (a pole slip, the
-  criterion of :func:`nni_battery_controller.simulate.assess`);
+* ``SLIPS``: the rotor angle against the infinite bus passed +-pi, |delta| > pi
+  (a pole slip as out-of-step protection sees it, the criterion of
+  :func:`nni_battery_controller.simulate.assess`; an initial condition with
+  |delta0| > pi has slipped at t = 0);
 * ``UNDECIDED``: none of these within the horizon (reported, never guessed).
 
 Time model. The paper's continuous-time law (what
@@ -32,13 +34,13 @@ continuous one on about 0.07 % of the cells, all on the boundary).
 Early exits, so that only undecided trajectories are integrated further (the
 active set shrinks as the run goes):
 
-* a pole slip is final: |d| > pi at a step's end, or at the extremum of d
-  inside a step whose speed changes sign (:func:`step_peak_angle`: a trajectory
-  grazing d = pi turns round within a few ms, between two step ends);
+* a pole slip is final: |delta| > pi at a step's end, or at the extremum of
+  delta inside a step whose speed changes sign (:func:`step_peak_angle`: a
+  trajectory grazing delta = pi turns round within a few ms, between two step ends);
 * b > 0: in the unsaturated mode the closed loop is linear (``M d'' + D d' =
   x3 - L d``) and the paper's W = 1/2 [d', d, x3] Q1 [d', d, x3]^T does not
   increase along it (W' = -D d'^2 - (K d - x3)^2 / (K tau) <= 0). A sublevel set
-  of W that lies inside |w| < b and |d| < pi is therefore invariant and the
+  of W that lies inside |w| < b and |delta| < pi is therefore invariant and the
   loop, linear and asymptotically stable in it, converges: entering it is a
   certificate of RETURNS. :func:`returns_level` finds the largest such level;
 * b = 0: no battery, the plant alone. The paper's invariant set Omega (W of the
@@ -60,6 +62,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import brentq
 
 from nni_battery_controller.law import (
     ControllerParams,
@@ -69,6 +72,7 @@ from nni_battery_controller.law import (
     saturation_input,
     x3_rate,
 )
+from nni_battery_controller.simulate import POLE_SLIP_RAD, simulate_continuous
 from nni_plant_sim.integrators import rk4_step
 from nni_plant_sim.model import (
     SmibParams,
@@ -90,7 +94,7 @@ OUTCOME_NAMES = {RETURNS: "returns", STAYS: "stays", SLIPS: "slips", UNDECIDED: 
 OUTCOME_MEANINGS = {
     "returns": "provably returns to the equilibrium (entered a certified region)",
     "stays": "provably stays in synchronism without returning (inside Omega, no battery, D = 0)",
-    "slips": "the angle deviation exceeded pi (half a turn): a pole slip",
+    "slips": "the rotor angle passed +-pi (180 degrees against the infinite bus): a pole slip",
     "undecided": "none of these within the horizon",
 }
 
@@ -180,12 +184,14 @@ def linear_loop_lyapunov(angle_dev_rad, speed_rad_s, x3, plant: SmibParams, ctrl
 
 
 def returns_level(plant: SmibParams, ctrl: ControllerParams, angles: int = 720, radii: int = 64) -> float:
-    """Largest level r with {W <= r} inside {|w| < b} and {|d| < pi}, pu * rad (0 for b = 0).
+    """Largest level r with {W <= r} inside {|w| < b} and {|delta| < pi}, pu * rad (0 for b = 0).
 
     W's sublevel set projects on the (d, x3) plane as the ellipse
     ``L d^2 / 2 - d x3 + x3^2 / (2K) <= r`` (d' = 0 minimises W); ``w`` depends
     on (d, x3) only. The constraints are checked on a polar grid filling the
-    ellipse (``angles`` x ``radii`` points) and r found by bisection.
+    ellipse (``angles`` x ``radii`` points): the largest of |delta| / pi and
+    |w| / b there grows with r (the ellipse scales with sqrt(r)), and r is the
+    root of that margin minus one (brentq).
     """
     b = ctrl.battery_limit_pu
     if b == 0.0:
@@ -198,24 +204,22 @@ def returns_level(plant: SmibParams, ctrl: ControllerParams, angles: int = 720, 
     unit = inverse_root @ np.stack((np.cos(theta), np.sin(theta)))
     filling = (unit[:, :, np.newaxis] * np.linspace(0.0, 1.0, radii + 1)[1:]).reshape(2, -1)
 
-    def inside(level: float) -> bool:
+    def margin(level: float) -> float:
+        """Above zero once the ellipse at ``level`` reaches |delta| = pi or |w| = b."""
         angle_dev, x3 = filling * math.sqrt(2.0 * level)
-        return bool(np.all(np.abs(angle_dev) < math.pi)
-                    and np.all(np.abs(saturation_input(x3, angle_dev, ctrl, plant)) < b))
+        return max(float(np.max(np.abs(angle_dev + plant.delta_bar_rad))) / POLE_SLIP_RAD,
+                   float(np.max(np.abs(saturation_input(x3, angle_dev, ctrl, plant)))) / b) - 1.0
 
-    low, high = 0.0, 1.0
-    while inside(high):  # |d| < pi bounds the level even for b = inf
-        low, high = high, 2.0 * high
-    while high - low > 1e-9 * high:
-        mid = 0.5 * (low + high)
-        low, high = (mid, high) if inside(mid) else (low, mid)
-    return low
+    high = 1.0
+    while margin(high) < 0.0:  # |delta| < pi bounds the level even for b = inf
+        high *= 2.0
+    return brentq(margin, 0.0, high, xtol=1e-12, rtol=1e-9)
 
 
 def decide(angle_dev_rad, speed_rad_s, x3, slipped, plant: SmibParams, ctrl: ControllerParams, level: float):
     """Outcome codes decided at these states, UNDECIDED where none applies yet; vectorised.
 
-    ``slipped`` says whether |d| has exceeded pi up to now; ``level`` is the
+    ``slipped`` says whether |delta| has exceeded pi up to now; ``level`` is the
     certificate level for b > 0 (from :func:`returns_level`, with margin).
     """
     outcome = np.full(np.shape(angle_dev_rad), UNDECIDED, dtype=np.int8)
@@ -293,29 +297,29 @@ def classify(plant: SmibParams, ctrl: ControllerParams, angle_dev0_rad, speed0_r
 
     active = np.arange(angle_dev0.size)  # indices of the trajectories still integrated
     state = np.stack((angle_dev0 + delta_bar, speed0, np.zeros_like(angle_dev0)))
-    max_abs_angle_dev = np.abs(angle_dev0)
+    max_abs_delta = np.abs(angle_dev0 + delta_bar)  # the rotor angle, for the pole-slip rule
     check_every = max(1, round(CHECK_EVERY_S / step_s))
     steps = math.ceil(horizon_s / step_s - 1e-9)
     for k in range(steps + 1):
         if k % check_every == 0 or k == steps:
-            now = decide(state[0] - delta_bar, state[1], state[2], max_abs_angle_dev > math.pi, plant, ctrl, level)
+            now = decide(state[0] - delta_bar, state[1], state[2], max_abs_delta > POLE_SLIP_RAD, plant, ctrl, level)
             done = now != UNDECIDED
             if done.any():
                 outcome[active[done]] = now[done]
                 decided_at[active[done]] = k * step_s
                 keep = ~done
-                active, state, max_abs_angle_dev = active[keep], state[:, keep], max_abs_angle_dev[keep]
+                active, state, max_abs_delta = active[keep], state[:, keep], max_abs_delta[keep]
             if on_check is not None:
                 on_check(k * step_s, active.size)
             if active.size == 0 or k == steps:
                 break
         previous, state = state, closed_loop_step(state, step_s, plant, ctrl)
-        np.maximum(max_abs_angle_dev, np.abs(state[0] - delta_bar), out=max_abs_angle_dev)
+        np.maximum(max_abs_delta, np.abs(state[0]), out=max_abs_delta)
         turned = np.flatnonzero(previous[1] * state[1] < 0.0)  # the speed changed sign: a peak of d inside
         if turned.size:
             peak = step_peak_angle(previous[0, turned], previous[1, turned], state[0, turned], state[1, turned],
                                    step_s)
-            max_abs_angle_dev[turned] = np.maximum(max_abs_angle_dev[turned], np.abs(peak - delta_bar))
+            max_abs_delta[turned] = np.maximum(max_abs_delta[turned], np.abs(peak))
     return outcome, decided_at
 
 
@@ -350,7 +354,7 @@ def classify_trajectory(traj, plant: SmibParams, ctrl: ControllerParams) -> tupl
     applies (UNDECIDED, NaN if none).
     """
     angle_dev = traj.angle_dev_rad
-    slipped = np.maximum.accumulate(np.abs(angle_dev)) > math.pi
+    slipped = np.maximum.accumulate(np.abs(traj.delta_rad)) > POLE_SLIP_RAD
     level = LEVEL_MARGIN * returns_level(plant, ctrl)
     now = decide(angle_dev, traj.speed_rad_s, traj.x3, slipped, plant, ctrl, level)
     first = np.flatnonzero(now != UNDECIDED)
@@ -369,8 +373,6 @@ def classify_continuous(plant: SmibParams, ctrl: ControllerParams, angle_dev0_ra
     early exit). Returns ``(outcome, decided_at_s)`` like :func:`classify`;
     FAILED where simulate_continuous raised RuntimeError.
     """
-    from nni_battery_controller.simulate import simulate_continuous
-    from nni_plant_sim.scenarios import InitialAngle
 
     angle_dev0 = np.asarray(angle_dev0_rad, dtype=float).ravel()
     speed0 = np.asarray(speed0_rad_s, dtype=float).ravel()
@@ -483,7 +485,7 @@ def report(plant: SmibParams, ctrls, grid: RoaGrid, basins, step_s: float = STEP
         "time_model": {
             "law": "continuous H3-hat, fixed-step RK4 with the law's mode taken at each stage",
             "step_s": step_s, "horizon_s": horizon_s,
-            "pole_slip": "|angle deviation| > pi",
+            "pole_slip": "|rotor angle delta| > pi (180 degrees against the infinite bus)",
         },
         "outcomes": OUTCOME_MEANINGS,
         "plant": {"inertia_h_s": plant.inertia_h_s, "damping_pu": plant.damping_pu, "p_mech_pu": plant.p_mech_pu,

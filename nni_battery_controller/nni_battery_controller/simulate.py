@@ -32,13 +32,17 @@ from nni_battery_controller.law import (
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.model import SmibParams, swing_rhs
 
-#: Beyond half a turn from equilibrium the machine has slipped a pole.
+#: A pole slip: the rotor angle delta against the infinite bus passes +-pi (180 degrees).
 POLE_SLIP_RAD = math.pi
 #: Band around equilibrium that counts as "returned", rad (about 1 degree).
 SETTLE_BAND_RAD = 0.02
 #: A run that switches mode more often than this is chattering (a sliding mode
 #: the event-located simulation does not resolve); it stops with an error.
 MAX_SWITCHES = 10_000
+#: A continuous run that needs more right-hand side evaluations than this stops
+#: with an error (a few tens of seconds of work, some 40 MB of dense output):
+#: the bound on work and memory when an estimate before the run was too kind.
+MAX_RHS_EVALUATIONS = 3_000_000
 
 
 @dataclass(frozen=True)
@@ -131,7 +135,13 @@ def simulate_continuous(
         drift = (ctrl.gain_l - plant.p_max_pu * math.cos(z[0])) * z[1]
         return x3_rate(z[2], z[0] - delta_bar, False, ctrl) - drift, x3_rate(z[2], z[0] - delta_bar, True, ctrl) - drift
 
+    evaluations = [0]
+
     def rhs(t, z, mode, side, network):
+        evaluations[0] += 1
+        if evaluations[0] > MAX_RHS_EVALUATIONS:
+            raise RuntimeError(f"more than {MAX_RHS_EVALUATIONS} right-hand side evaluations by t={t:.6f} s: "
+                               f"the loop is too stiff for this run (see --help on bounds)")
         w = w_of(z)
         if mode == UNSATURATED:
             power, x3_dot = w, x3_rate(z[2], z[0] - delta_bar, False, ctrl)
@@ -316,24 +326,81 @@ def simulate_sampled(
     )
 
 
+#: Decimal places (1 ns, the resolution of ROS time) that reported grid instants are snapped to.
+INSTANT_DECIMALS = 9
+
+
+def settle_hold_s(plant: SmibParams) -> float:
+    """Half the period of the machine's small swing about delta_bar, pi sqrt(M / (P_max cos delta_bar)), s.
+
+    How long |d| must stay within the band before the end of a run to call it
+    settled, and so the shortest run that can be judged: an oscillation wider
+    than the band spends less than half of each period inside it, and the
+    swing is the loop's slowest oscillation (the battery's angle feedback only
+    stiffens it). Paper case: 0.647 s. inf when P_M = P_max.
+    """
+    stiffness = plant.p_max_pu * math.cos(plant.delta_bar_rad)
+    return math.pi * math.sqrt(plant.inertia_m / stiffness) if stiffness > 0 else math.inf
+
+
+def pole_slip_instant(t_s: np.ndarray, delta_rad: np.ndarray) -> float | None:
+    """First instant the rotor angle delta passes +-pi (180 degrees against the infinite bus), s.
+
+    What out-of-step protection sees: the angle across the machine's
+    connection reaching half a turn. Interpolated linearly between the samples
+    around the crossing; a run that diverged (a non-finite angle) slips at its
+    first non-finite sample. None if the angle stays within +-pi.
+    """
+    beyond = np.flatnonzero(~(np.abs(delta_rad) <= POLE_SLIP_RAD))
+    if beyond.size == 0:
+        return None
+    i = beyond[0]
+    if i == 0 or not math.isfinite(delta_rad[i]) or delta_rad[i] * delta_rad[i - 1] <= 0:
+        return float(t_s[i])
+    before, after = abs(float(delta_rad[i - 1])), abs(float(delta_rad[i]))
+    return float(t_s[i - 1] + (t_s[i] - t_s[i - 1]) * (POLE_SLIP_RAD - before) / (after - before))
+
+
 @dataclass(frozen=True)
 class Outcome:
     """Summary of one run, the keys of ``nni-simulate --json`` and ``nni-demo``'s summary.
 
-    stable: the angle deviation never passed a pole slip (|d| > pi) and ended
-    within ``SETTLE_BAND_RAD`` of zero over the last second of the run.
+    Two separate verdicts, and ``stable`` for both:
+
+    in_synchronism: the rotor angle delta never passed +-pi (a pole slip, as
+        out-of-step protection sees it); ``pole_slip_s`` is the first instant it
+        did (None if never).
+    settled: |d| = |delta - delta_bar| ended within ``settle_band_rad`` of zero
+        and stayed there for at least ``settle_hold_s`` (half a swing period,
+        :func:`settle_hold_s`) before the end; ``settling_time_s`` is the first
+        instant after which it stays within the band (None if the run ends outside).
+    stable: in_synchronism and settled (the run returned to its equilibrium).
+    too_short_to_judge: the run ended before ``settle_hold_s`` without a pole
+        slip: it can be neither settled nor called unsettled (settled and stable
+        are false, and the verdict says "too short to judge").
+    equilibrium_moved: the scenario's change was still in force at the end (a
+        permanent mechanical power step): the equilibrium is no longer delta_bar,
+        so the run cannot settle at d = 0 even when it is in synchronism.
     last_saturated_s: last instant with |w| >= b (None if never).
-    settling_time_s: first instant after which |d| stays within the band (None
-    if the run ends outside it).
+    Grid instants are snapped to 1 ns (:func:`_instant`), without float noise.
     """
 
     b: float
     stable: bool
+    in_synchronism: bool
+    pole_slip_s: float | None
+    settled: bool
+    settling_time_s: float | None
+    settle_band_rad: float
+    settle_hold_s: float
+    too_short_to_judge: bool
+    equilibrium_moved: bool
+    duration_s: float
     final_angle_dev_rad: float
+    final_battery_power_pu: float
     max_abs_angle_dev_rad: float
     max_abs_battery_power_pu: float
     last_saturated_s: float | None
-    settling_time_s: float | None
 
     def to_json(self) -> dict:
         """JSON-ready dict; b = inf is written as the string "inf"."""
@@ -342,23 +409,147 @@ class Outcome:
         return out
 
 
-def assess(traj: Trajectory, settle_band_rad: float = SETTLE_BAND_RAD) -> Outcome:
-    """Summarise a trajectory: synchronism, peaks, saturation and settling."""
+def _instant(t_s) -> float | None:
+    """``t_s`` as a float, its float noise removed: snapped to the nanosecond when within 1e-12 s of one.
+
+    Grid instants (k / rate, k * 1 ms) then read as configured (0.3355, not
+    0.33549999999999996); located instants (events, interpolated slips) keep
+    every digit.
+    """
+    if t_s is None:
+        return None
+    snapped = round(float(t_s), INSTANT_DECIMALS)
+    return snapped if abs(snapped - float(t_s)) < 1e-12 else float(t_s)
+
+
+def assess(traj: Trajectory, settle_band_rad: float = SETTLE_BAND_RAD, scenario=None) -> Outcome:
+    """Summarise a trajectory: synchronism, settling, peaks and saturation (see :class:`Outcome`).
+
+    ``scenario`` (the run's) tells whether its change is still in force at the
+    end (``equilibrium_moved``); without it the network is taken as restored.
+    """
     dev = traj.angle_dev_rad
-    outside = np.flatnonzero(np.abs(dev) > settle_band_rad)
+    outside = np.flatnonzero(~(np.abs(dev) <= settle_band_rad))
     settled_from = 0.0 if outside.size == 0 else (
         traj.t_s[outside[-1] + 1] if outside[-1] + 1 < dev.size else None
     )
-    last_second = traj.t_s >= traj.t_s[-1] - 1.0
-    stable = bool(np.max(np.abs(dev)) < POLE_SLIP_RAD and np.all(np.abs(dev[last_second]) <= settle_band_rad))
+    duration = float(traj.t_s[-1] - traj.t_s[0])
+    slip = pole_slip_instant(traj.t_s, traj.delta_rad)
+    hold = settle_hold_s(traj.plant)
+    settled = slip is None and settled_from is not None and float(traj.t_s[-1] - settled_from) >= hold
+    moved = scenario is not None and tuple(scenario.network(float(traj.t_s[-1]), traj.plant)) != (
+        traj.plant.p_mech_pu, traj.plant.p_max_pu)
     # |w| = b at a located switch, which the rule counts as saturated.
     saturated_instants = np.concatenate((traj.t_s[traj.saturated], traj.switch_times_s))
     return Outcome(
         b=traj.ctrl.battery_limit_pu,
-        stable=stable,
+        stable=slip is None and bool(settled),
+        in_synchronism=slip is None,
+        pole_slip_s=_instant(slip),
+        settled=bool(settled),
+        settling_time_s=_instant(settled_from),
+        settle_band_rad=settle_band_rad,
+        settle_hold_s=round(hold, 3),
+        too_short_to_judge=slip is None and duration < hold,
+        equilibrium_moved=bool(moved),
+        duration_s=_instant(duration),
         final_angle_dev_rad=float(dev[-1]),
+        final_battery_power_pu=float(traj.battery_power_pu[-1]),
         max_abs_angle_dev_rad=float(np.max(np.abs(dev))),
         max_abs_battery_power_pu=float(np.max(np.abs(traj.battery_power_pu))),
-        last_saturated_s=float(saturated_instants.max()) if saturated_instants.size else None,
-        settling_time_s=None if settled_from is None else float(settled_from),
+        last_saturated_s=_instant(saturated_instants.max()) if saturated_instants.size else None,
     )
+
+
+def verdict_text(outcome: dict) -> str:
+    """The words a table prints for one run, from its :meth:`Outcome.to_json` dict."""
+    if not outcome["in_synchronism"]:
+        return f"POLE SLIP at {outcome['pole_slip_s']:.3f} s"
+    if outcome["too_short_to_judge"]:
+        return f"too short to judge (under {outcome['settle_hold_s']:g} s)"
+    if outcome["stable"]:
+        return f"stable, settled at {outcome['settling_time_s']:.2f} s"
+    if outcome["equilibrium_moved"]:
+        return (f"in sync, NEW EQUILIBRIUM (permanent step): d -> {outcome['final_angle_dev_rad']:+.3f} rad, "
+                f"P_ST {outcome['final_battery_power_pu']:+.3f} pu")
+    if outcome["settling_time_s"] is not None:
+        return f"in sync, NOT SETTLED (in band only since {outcome['settling_time_s']:.2f} s)"
+    return f"in sync, NOT SETTLED (|d| {abs(outcome['final_angle_dev_rad']):.3f} rad at the end)"
+
+
+#: Precision of the critical clearing time search, s.
+CCT_TOLERANCE_S = 1e-3
+
+
+@dataclass(frozen=True)
+class ClearingTime:
+    """Critical clearing time of a transfer-limit fault for one b, bracketed by bisection.
+
+    The run stays in synchronism (over ``duration_s``) when the fault clears at
+    ``in_sync_s`` and slips when it clears at ``slips_s``; ``slips_s - in_sync_s``
+    <= the tolerance. ``cct_s`` is ``in_sync_s``, the longest clearing time
+    shown to keep synchronism. ``slips_s`` is None (and cct_s the search's
+    upper end) when no clearing time up to that end slipped.
+    """
+
+    b: float
+    cct_s: float
+    in_sync_s: float
+    slips_s: float | None
+    runs: int
+
+    def to_json(self) -> dict:
+        """JSON-ready dict; b = inf is written as the string "inf"."""
+        return {"b": "inf" if math.isinf(self.b) else self.b, "cct_s": self.cct_s,
+                "bracket_s": [self.in_sync_s, self.slips_s], "runs": self.runs}
+
+
+def critical_clearing_time(in_sync, b: float, upper_s: float, tolerance_s: float = CCT_TOLERANCE_S) -> ClearingTime:
+    """Bisection for the longest clearing time ``t`` with ``in_sync(t)`` true.
+
+    ``in_sync(t)`` runs the fault cleared at ``t`` s and says whether the
+    machine stayed in synchronism. The bracket starts at [0, tolerance] (no
+    fault keeps the equilibrium) and doubles its upper end until a run slips
+    (or ``upper_s`` is reached), then halves to ``tolerance_s``. Instants are
+    rounded to 1 ns.
+    """
+    low, high, runs = 0.0, tolerance_s, 0
+    while True:
+        runs += 1
+        if not in_sync(high):
+            break
+        if high >= upper_s:
+            return ClearingTime(b, round(high, INSTANT_DECIMALS), round(high, INSTANT_DECIMALS), None, runs)
+        low, high = high, min(2.0 * high, upper_s)
+    while high - low > tolerance_s:
+        mid = 0.5 * (low + high)
+        runs += 1
+        low, high = (mid, high) if in_sync(mid) else (low, mid)
+    low, high = round(low, INSTANT_DECIMALS), round(high, INSTANT_DECIMALS)
+    return ClearingTime(b, low, low, high, runs)
+
+
+def equal_area_clearing_time_s(plant: SmibParams) -> float:
+    """Critical clearing time of a bolted fault (P_max = 0 while it lasts), no battery, D = 0.
+
+    During the fault M delta'' = P_M, so delta - delta_bar = P_M t^2 / (2 M).
+    Equal areas of acceleration (delta_bar to delta_cr, P_M) and deceleration
+    (delta_cr to the unstable equilibrium pi - delta_bar, P_max sin delta - P_M)
+    give cos(delta_cr) = (pi - 2 delta_bar) sin(delta_bar) - cos(delta_bar), and
+    t_cr = sqrt(2 M (delta_cr - delta_bar) / P_M). Paper case: 0.1127 s.
+    """
+    delta_bar = plant.delta_bar_rad
+    delta_cr = math.acos((math.pi - 2.0 * delta_bar) * math.sin(delta_bar) - math.cos(delta_bar))
+    return math.sqrt(2.0 * plant.inertia_m * (delta_cr - delta_bar) / plant.p_mech_pu)
+
+
+def fastest_rate_per_s(plant: SmibParams, ctrl: ControllerParams) -> float:
+    """A bound on the loop's fastest rate, 1/s: what an explicit integrator's step must resolve.
+
+    The largest of the controller's 1/tau and alpha/K, the swing's natural
+    frequency with the battery's angle feedback sqrt((P_max + L) / M), and the
+    damping's D / M. Used to refuse, before any work, a run out of reach.
+    """
+    m = plant.inertia_m
+    return max(1.0 / ctrl.tau_s, ctrl.alpha / ctrl.gain_k,
+               math.sqrt((abs(plant.p_max_pu) + ctrl.gain_l) / m), abs(plant.damping_pu) / m)

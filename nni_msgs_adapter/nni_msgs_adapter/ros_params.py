@@ -8,13 +8,11 @@ and an invalid change is rejected with that reason, the old values kept.
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
-from pathlib import Path
-
-import yaml
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+
+from nni_msgs_adapter.defaults import config_path, load_defaults  # noqa: F401 - re-exported for the nodes
 
 
 @dataclass(frozen=True)
@@ -41,36 +39,6 @@ class Spec:
             descriptor.floating_point_range = [FloatingPointRange(
                 from_value=float(self.low), to_value=float(self.high), step=0.0)]
         return descriptor
-
-
-def config_path(package: str, filename: str) -> Path:
-    """``config/<filename>`` of ``package``.
-
-    Looks in the installed share directory (colcon install, found through the
-    ament index) first, then beside the package's source (editable install).
-    """
-    candidates = []
-    try:
-        from ament_index_python.packages import get_package_share_directory
-
-        candidates.append(Path(get_package_share_directory(package)) / "config" / filename)
-    except (LookupError, OSError, ValueError):
-        pass  # not in an ament index (plain venv): use the source tree
-    module_file = importlib.import_module(package).__file__
-    candidates.append(Path(module_file).resolve().parent.parent / "config" / filename)
-    for path in candidates:
-        if path.is_file():
-            return path
-    raise FileNotFoundError(f"no config/{filename} for {package} in {', '.join(map(str, candidates))}")
-
-
-def load_defaults(package: str, filename: str, node_name: str) -> dict:
-    """A node's default parameter values from its package's ``config/<filename>`` (:func:`config_path`).
-
-    The file is a ROS params file keyed ``/**/<node_name>``.
-    """
-    with open(config_path(package, filename)) as handle:
-        return yaml.safe_load(handle)[f"/**/{node_name}"]["ros__parameters"]
 
 
 def declare(node, specs) -> None:

@@ -52,7 +52,8 @@ class InitialAngle:
 
 @dataclass(frozen=True)
 class MechanicalPowerStep:
-    """Mechanical power steps to ``p_mech_pu`` for ``duration_s`` (inf: for good).
+    """Mechanical power steps to ``p_mech_pu`` for ``duration_s``; ``inf`` (the one way
+    to write "for good") is a permanent step, which moves the equilibrium.
 
     Starts from the pre-fault equilibrium.
     """
@@ -118,6 +119,28 @@ SCENARIOS = {
     "mechanical_step": MechanicalPowerStep,
     "transfer_limit_fault": TransferLimitFault,
 }
+
+#: The values each scenario is built from, by parameter name (the plant node's
+#: parameter names, which the command-line options mirror).
+SCENARIO_FIELDS = {
+    "initial_angle": ("delta0_rad", "speed0_rad_s"),
+    "mechanical_step": ("step_p_mech_pu", "step_duration_s"),
+    "transfer_limit_fault": ("fault_p_max_pu", "clearing_time_s"),
+}
+
+
+def from_values(values) -> Scenario:
+    """The scenario ``values["scenario"]`` names, built from its fields in ``values``.
+
+    ``values`` maps the plant node's parameter names (``scenario`` and the
+    names in :data:`SCENARIO_FIELDS`) to values, e.g. a node's parameters or
+    ``plant.yaml``; the other scenarios' fields may be present and are not read.
+    ValueError for an unknown scenario name.
+    """
+    name = values["scenario"]
+    if name not in SCENARIOS:
+        raise ValueError(f"scenario must be one of {', '.join(SCENARIOS)}, got {name!r}")
+    return SCENARIOS[name](*(float(values[field]) for field in SCENARIO_FIELDS[name]))
 
 
 @dataclass(frozen=True)
