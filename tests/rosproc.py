@@ -10,14 +10,12 @@ from __future__ import annotations
 
 import itertools
 import os
-import signal
-import subprocess
 import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from nni_battery_controller.demo import node_command
+from nni_msgs_adapter.processes import Child, node_command
 
 _domain_counter = itertools.count()
 
@@ -39,42 +37,18 @@ def ros_env(domain_id: int, **extra) -> dict:
     return env
 
 
-class NodeProcess:
-    """A node started as its own process; output goes to a log file for post-mortems."""
+class NodeProcess(Child):
+    """A node (or any command) started as its own process, output in a log file for post-mortems.
+
+    The project's one supervisor (:mod:`nni_msgs_adapter.processes`): own session, dies with
+    the test process (parent-death signal)."""
 
     def __init__(self, cmd: list[str], env: dict, log_path: Path):
-        self.log_path = log_path
-        self._log = open(log_path, "wb")
-        self.proc = subprocess.Popen(cmd, env=env, stdout=self._log, stderr=subprocess.STDOUT,
-                                     start_new_session=True)
-
-    def wait(self, timeout: float) -> int:
-        """Exit status, or TimeoutExpired after ``timeout`` s."""
-        return self.proc.wait(timeout=timeout)
+        super().__init__(log_path.stem, cmd, env, log_path)
 
     def interrupt(self, timeout: float = 10.0) -> int:
         """SIGINT and wait; SIGKILL if it does not exit in time. Returns the exit status."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(timeout=timeout)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        self._log.close()
-        return self.proc.returncode
-
-    def kill(self) -> None:
-        """SIGKILL (simulates a crash)."""
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
-
-    def output(self) -> str:
-        """Everything the process printed so far."""
-        if not self._log.closed:
-            self._log.flush()
-        return self.log_path.read_text(errors="replace")
+        return self.stop(timeout)
 
 
 @contextmanager
