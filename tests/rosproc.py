@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import itertools
 import os
+import subprocess
+import sys
 import threading
 import time
 from contextlib import contextmanager
@@ -52,6 +54,18 @@ class NodeProcess(Child):
 
 
 @contextmanager
+def busy_processes(count: int = 2):
+    """``count`` processes spinning on a core each (a loaded machine) for the block; ended by pid."""
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+    try:
+        yield busy
+    finally:
+        for proc in busy:
+            proc.kill()
+            proc.wait()
+
+
+@contextmanager
 def node_processes(tmp_path: Path, domain_id: int):
     """Start nodes with ``start(name, module, params)``; every one is stopped on exit."""
     started: list[NodeProcess] = []
@@ -85,6 +99,7 @@ class Probe:
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node("probe", namespace=namespace or None, context=self.context)
         self.messages: dict[str, list] = {topic: [] for topic in topics}
+        self._handlers: dict[str, list] = {topic: [] for topic in topics}
         self._publishers: dict[str, object] = {}
         self._lock = threading.Lock()
         for topic in topics:
@@ -99,7 +114,13 @@ class Probe:
         def record(msg):
             with self._lock:
                 self.messages[topic].append(msg)
+            for handler in self._handlers[topic]:
+                handler(msg)
         return record
+
+    def on_message(self, topic, handler) -> None:
+        """Call ``handler(msg)`` (on the probe's spin thread) for every message on ``topic`` from now on."""
+        self._handlers[topic].append(handler)
 
     def _spin(self):
         while self.context.ok():

@@ -314,6 +314,10 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
     wall_s = time.monotonic() - started
     counts = logger_counts(logger.output())
     summary = plant_summary(plant.output())
+    recorded, sent = sum(n for topic, n in counts.items() if topic.endswith("/pmu")), int(summary["measurements"])
+    if recorded < sent:
+        raise CliError(f"the recording {recording} is partial: the logger recorded {recorded} of the {sent} "
+                       f"measurements the plant sent (logs in {logs})")
     run = read_generator_run(recording)
     if bridge is not None:
         wait_for_bridge(bridge, index, run, logs)
