@@ -26,6 +26,7 @@ PURE_MODULES = [
     "nni_msgs_adapter.rerun_view",
     "nni_msgs_adapter.cli_support",
     "nni_msgs_adapter.loop_stats",
+    "nni_msgs_adapter.processes",
 ]
 
 PROBE = """
