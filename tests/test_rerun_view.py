@@ -303,3 +303,20 @@ def test_runs_in_separate_files_overlay_when_merged(tmp_path: Path) -> None:
     for label in RUNS:
         t, _ = scalars(entities[run_paths(label).angle])
         assert t.size == 100
+
+
+def test_time_series_views_show_simulated_seconds_from_zero(tmp_path: Path) -> None:
+    """Every time-series view: x axis from t = 0 s on, linked across views, all of each run visible."""
+    path = tmp_path / "layout.rbl"
+    blueprint().save("nni_test", path)
+    reader = RrdReader(path)
+    axes, ranges = [], []
+    for chunk in reader.stream(store=reader.blueprints()[0]):
+        batch = chunk.to_record_batch()
+        if "TimeAxis:view_range" in batch.schema.names:
+            axes.append((batch.column("TimeAxis:view_range").to_pylist()[-1][0],
+                         batch.column("TimeAxis:link").to_pylist()[-1][0]))
+        if "VisibleTimeRanges:ranges" in batch.schema.names:
+            ranges.append(batch.column("VisibleTimeRanges:ranges").to_pylist()[-1][0])
+    assert axes == [({"start": 0, "end": None}, 2)] * 5  # five time-series views, linked to the global axis
+    assert ranges.count({"timeline": TIMELINE, "range": {"start": None, "end": None}}) == 5

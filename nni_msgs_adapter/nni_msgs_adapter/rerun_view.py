@@ -176,9 +176,15 @@ def blueprint(
         The blueprint; send it with :meth:`rerun.RecordingStream.send_blueprint`.
     """
     legend = rrb.PlotLegend(corner=rrb.Corner2D.RightTop)
+    # Simulated seconds from the runs' start (t = 0) on, the same range in every view: the views scroll
+    # and zoom together, and runs of different lengths overlay from 0.
+    axis_x = rrb.TimeAxis(link="LinkToGlobal", view_range=rr.encodings.TimeRange(
+        start=rrb.TimeRangeBoundary.absolute(seconds=0.0), end=rrb.TimeRangeBoundary.infinite()))
 
     def series_view(origin: str, name: str, axis_y: rrb.ScalarAxis | None = None) -> rrb.TimeSeriesView:
-        return rrb.TimeSeriesView(origin=origin, name=name, plot_legend=legend, axis_y=axis_y)
+        return rrb.TimeSeriesView(origin=origin, name=name, plot_legend=legend, axis_x=axis_x, axis_y=axis_y,
+                                  time_ranges=rrb.VisibleTimeRange(timeline, start=rrb.TimeRangeBoundary.infinite(),
+                                                                   end=rrb.TimeRangeBoundary.infinite()))
 
     bounds = None
     if phase_bounds is not None:
