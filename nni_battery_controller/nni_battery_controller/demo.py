@@ -86,16 +86,17 @@ def build_parser() -> OneLineParser:
     return parser
 
 
-def recording_name(b: float, plant: dict) -> str:
+def recording_name(b: float, plant: dict | None = None) -> str:
     """File name of one run's recording: paper_b0.3.mcap for the paper's case, <scenario>_b0.3.mcap otherwise.
 
-    ``plant`` holds the plant parameters the demo sets; the paper's case is the
-    package defaults for everything but the run's set-up (mode, duration, rate).
+    ``plant`` holds the plant parameters the demo sets (None: the paper's case);
+    the paper's case is the package defaults for everything but the run's set-up
+    (mode, duration, rate, subscribers to wait for).
     """
-    case = {key: value for key, value in plant.items() if key not in RUN_CONTROL}
     defaults = plant_defaults()
+    case = {key: value for key, value in (plant or {}).items() if key not in RUN_CONTROL}
     paper = all(defaults.get(key) == value for key, value in case.items())
-    scenario = plant.get("scenario", defaults["scenario"])
+    scenario = case.get("scenario", defaults["scenario"])
     return f"{'paper' if paper else scenario}_b{'inf' if math.isinf(b) else f'{b:g}'}.mcap"
 
 
