@@ -301,8 +301,6 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
         controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params)
         plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params)
         wait_for_plant(plant, args, b, limit_s=60.0 + (args.duration if args.mode == "realtime" else args.duration * 2))
-        # The controller goes with the plant: left alone it would warn that measurements stopped.
-        controller.stop()
         try:
             status = plant.wait_exit(procs.grace_s)
         except ChildError as error:
@@ -310,6 +308,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
         if status != 0:
             raise CliError(f"the plant exited with status {status}: {plant.tail()}")
         time.sleep(DRAIN_S)
+        controller.stop()
         if logger.stop() != 0:
             raise CliError(f"the logger failed: {logger.tail()}")
     wall_s = time.monotonic() - started
