@@ -99,7 +99,7 @@ class Probe:
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node("probe", namespace=namespace or None, context=self.context)
         self.messages: dict[str, list] = {topic: [] for topic in topics}
-        self._handlers: dict[str, list] = {topic: [] for topic in topics}
+        self._handlers: dict[str, list] = {}
         self._publishers: dict[str, object] = {}
         self._lock = threading.Lock()
         for topic in topics:
@@ -114,13 +114,13 @@ class Probe:
         def record(msg):
             with self._lock:
                 self.messages[topic].append(msg)
-            for handler in self._handlers[topic]:
+            for handler in self._handlers.get(topic, ()):
                 handler(msg)
         return record
 
     def on_message(self, topic, handler) -> None:
         """Call ``handler(msg)`` (on the probe's spin thread) for every message on ``topic`` from now on."""
-        self._handlers[topic].append(handler)
+        self._handlers.setdefault(topic, []).append(handler)
 
     def _spin(self):
         while self.context.ok():
