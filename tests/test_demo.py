@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import signal
 import subprocess
 import sys
@@ -279,3 +280,32 @@ def test_help_states_the_domain_id():
     result = subprocess.run([str(DEMO), "--help"], capture_output=True, text=True, timeout=60)
     text = " ".join(result.stdout.split())
     assert "$ROS_DOMAIN_ID, else 42" in text and "domain of its own" not in text
+
+
+def test_realtime_run_shows_its_progress_on_a_terminal(tmp_path):
+    """On a terminal a realtime run counts its simulated time up to the duration; off a terminal it prints nothing."""
+    import pty
+
+    domain = fresh_domain_id()
+    master, slave = pty.openpty()
+    try:
+        result = subprocess.run([str(DEMO), "--mode", "realtime", "--b", "0.3", "--duration", "2", "--out",
+                                 str(tmp_path), "--domain-id", str(domain)], env=ros_env(domain),
+                                stdout=subprocess.PIPE, stderr=slave, text=True, timeout=120)
+        os.close(slave)
+        shown = b""
+        while True:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:  # the terminal's other end is closed and drained
+                break
+            if not chunk:
+                break
+            shown += chunk
+    finally:
+        os.close(master)
+    assert result.returncode == 0
+    text = shown.decode(errors="replace")
+    # Counted from the plant's start line to its end, then the line is cleared.
+    assert "t =   0.0 of 2 s" in text and "t =   1.5 of 2 s" in text and text.endswith("\r\x1b[K"), text
+    assert "of 2 s" not in result.stdout

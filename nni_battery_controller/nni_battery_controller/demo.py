@@ -241,7 +241,7 @@ def plant_summary(output: str) -> dict:
 def wait_for_plant(plant, args, b: float, limit_s: float) -> None:
     """Wait for the plant's final summary line; on a terminal, show a realtime run's progress."""
     show = args.mode == "realtime" and sys.stderr.isatty()
-    deadline, started = time.monotonic() + limit_s, None
+    deadline, started, shown = time.monotonic() + limit_s, None, ""
     while SUMMARY_PREFIX not in plant.output():
         if plant.poll() is not None:
             return
@@ -251,9 +251,11 @@ def wait_for_plant(plant, args, b: float, limit_s: float) -> None:
             if started is None and "started in" in plant.output():
                 started = time.monotonic()
             if started is not None:
-                elapsed = min(time.monotonic() - started, args.duration)
-                print(f"\r  b = {b:<5g} t = {elapsed:5.1f} of {args.duration:g} s", end="", file=sys.stderr,
-                      flush=True)
+                # Realtime: simulated time runs with the wall clock from the plant's start.
+                text = f"\r  b = {b:<5g} t = {min(time.monotonic() - started, args.duration):5.1f} of {args.duration:g} s"
+                if text != shown:
+                    print(text, end="", file=sys.stderr, flush=True)
+                    shown = text
         time.sleep(0.05)
     if show:
         print("\r\033[K", end="", file=sys.stderr, flush=True)
