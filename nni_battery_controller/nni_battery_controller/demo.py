@@ -327,9 +327,12 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
     outcome = assess(traj).to_json()
     diag = run.diagnostics
     outcome.update({
-        "mode": args.mode, "rate_hz": args.rate, "recording": str(recording), "wall_time_s": wall_s,
+        "mode": args.mode, "rate_hz": args.rate, "recording": str(recording),
+        "wall_time_s": round(wall_s, 3),
         "samples": int(diag.get("samples", 0)),
-        "latency_ms": {q: float(diag[f"latency_{q}_ms"]) for q in ("p50", "p99", "max") if f"latency_{q}_ms" in diag},
+        # The plant measures latency to the nanosecond: more digits are float noise (0.33549999999999996).
+        "latency_ms": {q: round(float(diag[f"latency_{q}_ms"]), 6) for q in ("p50", "p99", "max")
+                       if f"latency_{q}_ms" in diag},
         "dropped_samples": int(diag.get("deadline_misses", 0)),
         "late_samples": int(diag.get("late", 0)),
         "logger_counts": counts,
