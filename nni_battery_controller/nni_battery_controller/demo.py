@@ -252,7 +252,8 @@ def wait_for_plant(plant, args, b: float, limit_s: float) -> None:
                 started = time.monotonic()
             if started is not None:
                 # Realtime: simulated time runs with the wall clock from the plant's start.
-                text = f"\r  b = {b:<5g} t = {min(time.monotonic() - started, args.duration):5.1f} of {args.duration:g} s"
+                elapsed_s = min(time.monotonic() - started, args.duration)
+                text = f"\r  b = {b:<5g} t = {elapsed_s:5.1f} of {args.duration:g} s"
                 if text != shown:
                     print(text, end="", file=sys.stderr, flush=True)
                     shown = text
