@@ -26,8 +26,9 @@ from nni_battery_controller.demo import (
 )
 from nni_msgs_adapter import contract
 from nni_msgs_adapter.recording import read_generator_run
+from nni_msgs_adapter.rerun_bridge import PROGRESS_PREFIX
 from nni_msgs_adapter.rerun_view import run_paths
-from rosproc import Probe, busy_processes, fresh_domain_id, ros_env
+from rosproc import Probe, busy_processes, fresh_domain_id, node_processes, ros_env
 
 pytestmark = pytest.mark.ros
 
@@ -311,3 +312,20 @@ def test_realtime_run_shows_its_progress_on_a_terminal(tmp_path):
     # Counted from the plant's start line to its end, then the line is cleared.
     assert "t =   0.0 of 2 s" in text and "t =   1.5 of 2 s" in text and text.endswith("\r\x1b[K"), text
     assert "of 2 s" not in result.stdout
+
+
+def test_a_plant_told_to_wait_for_the_bridge_starts_only_when_the_bridge_hears_it(tmp_path):
+    """The bridge is counted on pmu only once it hears the plant and the controller; then it gets the whole run."""
+    domain = fresh_domain_id()
+    with node_processes(tmp_path, domain) as start:
+        start("controller", "nni_battery_controller.controller_node", {"battery_limit_pu": 0.3})
+        plant = start("plant", "nni_plant_sim.plant_node", {"mode": "lockstep", "duration_s": 1.0,
+                                                            "wait_for_subscribers": 2})
+        time.sleep(3.0)
+        assert "started in" not in plant.output(), "two subscribers were asked for: the controller and the bridge"
+        bridge = start("rerun_bridge", "nni_msgs_adapter.rerun_bridge", {"sink": "save",
+                                                                           "path": str(tmp_path / "live.rrd")})
+        assert plant.wait(timeout=60) == 0
+        line = bridge.wait_for_line(PROGRESS_PREFIX, 30.0, lambda line: '"samples": 50,' in line)
+    assert json.loads(line[len(PROGRESS_PREFIX):]) == {"run": 1, "label": "b=0.3", "samples": 50, "first_t_s": 0.0,
+                                                       "last_t_s": 0.98}

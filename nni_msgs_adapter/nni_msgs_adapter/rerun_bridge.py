@@ -181,7 +181,7 @@ class RerunBridge(Node):
             run.label = label if self._labels[label] == 1 else f"{label} #{self._labels[label]}"
             run.logger = LiveLogger(self._recording, run.label, b, self._f0_hz, omega_boundary=self._boundary,
                                     color=run_color(b))
-        t_s = (stamp_ns - run.t0_ns) * 1e-9
+        t_s = (stamp_ns - run.t0_ns) / 1e9  # correctly rounded: 0.98, not 0.9800000000000001
         run.logger.log(t_s, signals["angle_dev"], speed, signals["battery_power"], signals["saturated"] > 0.5,
                        signals["w_hat"])
         run.samples += 1
