@@ -80,6 +80,7 @@ class _Run:
         self.samples = 0
         self.first_t_s = self.last_t_s = math.nan
         self.reported = 0
+        self.plant_gone = False
 
     def progress(self) -> str:
         return PROGRESS_PREFIX + json.dumps({"run": self.index, "label": self.label, "samples": self.samples,
@@ -118,30 +119,41 @@ class RerunBridge(Node):
         self.get_logger().info(f"{READY_TEXT} ({values['sink']})")
 
     def _watch(self) -> None:
-        """Open the gate when a plant and a controller are heard, end the run when the plant is gone."""
+        """Open the gate when a plant and a controller are heard; close it when the plant is gone."""
         plants = self._plant_sub.get_publisher_count()
-        if self._run is None and plants and self._controller_sub.get_publisher_count():
+        if self._gate is None and plants and self._controller_sub.get_publisher_count() and self._run_over():
             self._begin_run()
-        elif self._run is not None and not plants:
-            self._end_run()
+        elif self._gate is not None and not plants:
+            self._end_plant()
         self._report()
+
+    def _run_over(self) -> bool:
+        return self._run is None or self._run.plant_gone
 
     def _begin_run(self) -> None:
+        """A new run: the previous one's halves are forgotten, and the gate opens unless it is open."""
         self._runs += 1
         self._run = _Run(self._runs)
-        msg_type, name, qos = contract.recorder_endpoint(contract.TOPIC_PMU)
-        self._gate = self.create_subscription(msg_type, name, lambda msg: None, qos)
+        self._pending.clear()
+        if self._gate is None:
+            msg_type, name, qos = contract.recorder_endpoint(contract.TOPIC_PMU)
+            self._gate = self.create_subscription(msg_type, name, lambda msg: None, qos)
 
-    def _end_run(self) -> None:
-        if self._run.logger is not None:
+    def _end_plant(self) -> None:
+        """The run's plant is gone: close the gate (the next plant waits for the bridge again) and flush.
+
+        The run stays current until the next one begins, so that its last controller states,
+        still on their way when the plant left, are paired and drawn.
+        """
+        self.destroy_subscription(self._gate)
+        self._gate = None
+        self._run.plant_gone = True
+        self._flush()
+
+    def _flush(self) -> None:
+        if self._run is not None and self._run.logger is not None:
             self._run.logger.flush()
         self._recording.flush()
-        self._report()
-        self._run = None
-        self._pending.clear()
-        if self._gate is not None:
-            self.destroy_subscription(self._gate)
-            self._gate = None
 
     def _report(self) -> None:
         run = self._run
@@ -154,7 +166,7 @@ class RerunBridge(Node):
 
     def _on_plant(self, msg) -> None:
         stamp_ns, _, speed, _ = contract.plant_state_from_message(msg)
-        if self._run is None:  # a plant that did not wait for the bridge: its run starts here
+        if self._run_over():  # a plant that did not wait for the bridge: its run starts here
             self._begin_run()
         if self._run.t0_ns is None:
             self._run.t0_ns = stamp_ns
@@ -190,9 +202,8 @@ class RerunBridge(Node):
 
     def close(self) -> None:
         """Draw what is pending, report and flush the stream."""
-        if self._run is not None:
-            self._end_run()
-        self._recording.flush()
+        self._flush()
+        self._report()
 
 
 def main(args=None) -> int:
