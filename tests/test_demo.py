@@ -224,23 +224,28 @@ def test_killed_demo_leaves_no_process_running(tmp_path, signum):
 
 
 def test_rogue_commands_make_the_run_compromised(tmp_path):
-    """A stranger answering every measurement with 5 pu: non-zero exit, one line saying what, in summary.json."""
+    """A stranger re-sending 5 pu right after each real command: non-zero exit, one line saying what, in summary.json.
+
+    Realtime, so that the rogue's command is the one in force until the next reporting
+    instant (issue 11, attacks 1 and 2): today the plant applies it; once it pairs with its
+    controller it drops it as foreign. Either way the run is compromised.
+    """
     domain = fresh_domain_id()
-    rogue = Probe(domain, [contract.TOPIC_PMU])
+    rogue = Probe(domain, [contract.TOPIC_BATTERY_COMMAND])
 
-    def answer(msg):
-        stamp_ns, _, _ = contract.pmu_from_message(msg)
-        rogue.publish(contract.TOPIC_BATTERY_COMMAND, contract.command_message(stamp_ns, 5.0))
+    def follow(msg):
+        stamp_ns, power = contract.command_from_message(msg)
+        if power != 5.0:  # the controller's command, not the rogue's own
+            rogue.publish(contract.TOPIC_BATTERY_COMMAND, contract.command_message(stamp_ns + 1_000_000, 5.0))
 
-    rogue.publish(contract.TOPIC_BATTERY_COMMAND, contract.command_message(0, 0.0))  # publisher made before the run
-    rogue.on_message(contract.TOPIC_PMU, answer)
+    rogue.on_message(contract.TOPIC_BATTERY_COMMAND, follow)
     try:
-        result = run_demo(["--b", "0.3", "--duration", "2", "--out", str(tmp_path)], domain)
+        result = run_demo(["--mode", "realtime", "--b", "0.3", "--duration", "2", "--out", str(tmp_path)], domain)
     finally:
         rogue.close()
     assert result.returncode == 3, result.stdout + result.stderr
     (line,) = [line for line in result.stdout.splitlines() if "b = 0.3" in line]
-    assert "COMPROMISED" in line and "stable" not in line
+    assert "COMPROMISED" in line and "stable" not in line and "SYNCHRONISM" not in line
     assert len(result.stderr.strip().splitlines()) == 1 and "compromised" in result.stderr
     (run,) = json.loads((tmp_path / "summary.json").read_text())["scenarios"]
     reasons = run["compromised"]
