@@ -27,15 +27,14 @@ import json
 import math
 import os
 import platform
-import signal
-import subprocess
 import sys
 import time
-from contextlib import contextmanager
 from importlib import metadata
 from pathlib import Path
 
 import numpy as np
+
+from nni_msgs_adapter.processes import Supervisor
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Targets of issue 5 (ratios are measured in the same run).
@@ -96,58 +95,9 @@ def machine_description() -> dict:
 # --- processes ----------------------------------------------------------------------------
 
 
-class Children:
-    """Child processes of one measurement; all stopped (SIGINT, then SIGKILL) when the block ends."""
-
-    def __init__(self, env: dict, log_dir: Path):
-        self.env, self.log_dir, self.procs = env, log_dir, {}
-
-    def start(self, name: str, cmd: list[str]) -> subprocess.Popen:
-        log = open(self.log_dir / f"{name}.log", "wb")
-        proc = subprocess.Popen(cmd, env=self.env, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
-                                start_new_session=True)
-        self.procs[name] = (proc, log)
-        return proc
-
-    def output(self, name: str) -> str:
-        return (self.log_dir / f"{name}.log").read_text(errors="replace")
-
-    def wait(self, name: str, timeout_s: float) -> int:
-        proc = self.procs[name][0]
-        try:
-            return proc.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            raise RuntimeError(f"{name} did not finish within {timeout_s:.0f} s: "
-                               f"{self.output(name).strip()[-400:]}") from None
-
-    def stop_all(self) -> None:
-        for proc, log in self.procs.values():
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGINT)
-        for proc, log in self.procs.values():
-            try:
-                proc.wait(timeout=10.0)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-            log.close()
-        self.procs.clear()
-
-
-@contextmanager
-def children(env: dict, log_dir: Path):
-    log_dir.mkdir(parents=True, exist_ok=True)
-    group = Children(env, log_dir)
-    try:
-        yield group
-    finally:
-        group.stop_all()
-
-
-def node_cmd(module: str, params: dict) -> list[str]:
-    from nni_battery_controller.demo import node_command
-
-    return node_command(module, params)
+def children(env: dict, log_dir: Path) -> Supervisor:
+    """Child processes of one measurement (the project's supervisor); all stopped when the block ends."""
+    return Supervisor(env, log_dir, cwd=ROOT)
 
 
 #: The real controller node in the echo's place: it answers the ping (a PMU message) with a command
@@ -166,10 +116,10 @@ def pingpong(env: dict, log_dir: Path, mode: str, rate_hz: float = 100.0, durati
         procs.start("echo", peer or [sys.executable, "-m", "bench.pingpong", "echo"])
         procs.start("ping", [sys.executable, "-m", "bench.pingpong", "ping", "--mode", mode, "--rate", str(rate_hz),
                              "--duration", str(duration_s), "--samples", str(samples)])
-        status = procs.wait("ping", timeout_s=60.0 + duration_s + samples * 0.05)
+        status = procs["ping"].wait_exit(60.0 + duration_s + samples * 0.05)
         if status != 0:
-            raise RuntimeError(f"ping-pong ping exited with {status}: {procs.output('ping').strip()[-400:]}")
-        for line in procs.output("ping").splitlines():
+            raise RuntimeError(f"ping-pong ping exited with {status}: {procs['ping'].tail(400)}")
+        for line in procs["ping"].output().splitlines():
             if line.startswith(RESULT_PREFIX):
                 return json.loads(line[len(RESULT_PREFIX):])
     raise RuntimeError("ping-pong printed no result")
@@ -185,16 +135,16 @@ def closed_loop(env: dict, log_dir: Path, mode: str, rate_hz: float, duration_s:
     from nni_plant_sim.plant_node import SUMMARY_PREFIX
 
     with children(env, log_dir) as procs:
-        procs.start("controller", node_cmd("nni_battery_controller.controller_node",
-                                           {"battery_limit_pu": LOOP_BATTERY_LIMIT_PU, "sample_rate_hz": rate_hz}))
-        procs.start("plant", node_cmd("nni_plant_sim.plant_node",
-                                      {"mode": mode, "duration_s": duration_s, "pmu_rate_hz": rate_hz,
-                                       "wait_for_subscribers": 1}))
+        procs.start_node("controller", "nni_battery_controller.controller_node",
+                         {"battery_limit_pu": LOOP_BATTERY_LIMIT_PU, "sample_rate_hz": rate_hz})
+        procs.start_node("plant", "nni_plant_sim.plant_node",
+                         {"mode": mode, "duration_s": duration_s, "pmu_rate_hz": rate_hz,
+                          "wait_for_subscribers": 1})
         limit = 60.0 + duration_s * (1.0 if mode == "realtime" else 2.0)
-        status = procs.wait("plant", timeout_s=limit)
+        status = procs["plant"].wait_exit(limit)
         if status != 0:
-            raise RuntimeError(f"plant exited with {status}: {procs.output('plant').strip()[-400:]}")
-        for line in procs.output("plant").splitlines():
+            raise RuntimeError(f"plant exited with {status}: {procs['plant'].tail(400)}")
+        for line in procs["plant"].output().splitlines():
             if line.startswith(SUMMARY_PREFIX):
                 return json.loads(line[len(SUMMARY_PREFIX):])
     raise RuntimeError("the plant printed no summary")

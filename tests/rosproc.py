@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import itertools
 import os
-import signal
 import subprocess
+import sys
 import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from nni_battery_controller.demo import node_command
+from nni_msgs_adapter.processes import Child, node_command
 
 _domain_counter = itertools.count()
 
@@ -39,42 +39,30 @@ def ros_env(domain_id: int, **extra) -> dict:
     return env
 
 
-class NodeProcess:
-    """A node started as its own process; output goes to a log file for post-mortems."""
+class NodeProcess(Child):
+    """A node (or any command) started as its own process, output in a log file for post-mortems.
+
+    The project's one supervisor (:mod:`nni_msgs_adapter.processes`): own session, dies with
+    the test process (parent-death signal)."""
 
     def __init__(self, cmd: list[str], env: dict, log_path: Path):
-        self.log_path = log_path
-        self._log = open(log_path, "wb")
-        self.proc = subprocess.Popen(cmd, env=env, stdout=self._log, stderr=subprocess.STDOUT,
-                                     start_new_session=True)
-
-    def wait(self, timeout: float) -> int:
-        """Exit status, or TimeoutExpired after ``timeout`` s."""
-        return self.proc.wait(timeout=timeout)
+        super().__init__(log_path.stem, cmd, env, log_path)
 
     def interrupt(self, timeout: float = 10.0) -> int:
         """SIGINT and wait; SIGKILL if it does not exit in time. Returns the exit status."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(timeout=timeout)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        self._log.close()
-        return self.proc.returncode
+        return self.stop(timeout)
 
-    def kill(self) -> None:
-        """SIGKILL (simulates a crash)."""
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
 
-    def output(self) -> str:
-        """Everything the process printed so far."""
-        if not self._log.closed:
-            self._log.flush()
-        return self.log_path.read_text(errors="replace")
+@contextmanager
+def busy_processes(count: int = 2):
+    """``count`` processes spinning on a core each (a loaded machine) for the block; ended by pid."""
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+    try:
+        yield busy
+    finally:
+        for proc in busy:
+            proc.kill()
+            proc.wait()
 
 
 @contextmanager
@@ -111,6 +99,7 @@ class Probe:
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = rclpy.create_node("probe", namespace=namespace or None, context=self.context)
         self.messages: dict[str, list] = {topic: [] for topic in topics}
+        self._handlers: dict[str, list] = {}
         self._publishers: dict[str, object] = {}
         self._lock = threading.Lock()
         for topic in topics:
@@ -125,7 +114,13 @@ class Probe:
         def record(msg):
             with self._lock:
                 self.messages[topic].append(msg)
+            for handler in self._handlers.get(topic, ()):
+                handler(msg)
         return record
+
+    def on_message(self, topic, handler) -> None:
+        """Call ``handler(msg)`` (on the probe's spin thread) for every message on ``topic`` from now on."""
+        self._handlers.setdefault(topic, []).append(handler)
 
     def _spin(self):
         while self.context.ok():

@@ -8,6 +8,7 @@ starts it from the installed tree.
 
 from __future__ import annotations
 
+import ast
 import os
 import shutil
 import subprocess
@@ -16,6 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 from rosproc import fresh_domain_id, ros_env
 
@@ -122,3 +124,66 @@ def test_installed_nodes_run_the_loop(workspace, tmp_path):
     assert controller.returncode == 0 and logger.returncode == 0
     states = [r for r in read_messages(recording) if r.topic == "/" + contract.TOPIC_PLANT_STATE]
     assert len(states) == 101, "2 s at 50 frames/s: samples t_0 .. t_100"
+
+
+def launch_file_constants(path: Path) -> tuple[ast.Module, dict]:
+    """The launch file's syntax tree and its module-level literal constants (argument lists, CONFIG)."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    constants = {}
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name):
+            try:
+                constants[node.targets[0].id] = ast.literal_eval(node.value)
+            except ValueError:
+                continue
+    return tree, constants
+
+
+def test_launch_file_matches_the_installed_nodes(workspace):
+    """launch is not installable here, so the launch file is not run: what can be checked without it is.
+
+    Its arguments are parameters the nodes declare, the config files it passes exist in the
+    install and hold a default for every argument, every Node it starts resolves as ros2 run
+    would, and the plant's exit is wired to a Shutdown.
+    """
+    from nni_battery_controller.controller_node import PARAMETERS as CONTROLLER
+    from nni_msgs_adapter.mcap_logger import PARAMETERS as LOGGER
+    from nni_plant_sim.plant_node import PARAMETERS as PLANT
+
+    install = workspace / "install"
+    path = install / "nni_battery_controller" / "share" / "nni_battery_controller" / "launch" / "closed_loop.launch.py"
+    tree, constants = launch_file_constants(path)
+    declared = {"plant": {s.name for s in PLANT}, "controller": {s.name for s in CONTROLLER},
+                "mcap_logger": {s.name for s in LOGGER}}
+    for names, nodes in (("PLANT_ARGUMENTS", ("plant",)), ("CONTROLLER_ARGUMENTS", ("controller",)),
+                         ("MODEL_ARGUMENTS", ("plant", "controller")), ("LOGGER_ARGUMENTS", ("mcap_logger",))):
+        for node in nodes:
+            assert set(constants[names]) <= declared[node], (names, node, set(constants[names]) - declared[node])
+    # The scenario, each scenario's options and the gains are all arguments.
+    assert {"scenario", "delta0_rad", "speed0_rad_s", "step_p_mech_pu", "step_duration_s", "fault_p_max_pu",
+            "clearing_time_s"} <= set(constants["PLANT_ARGUMENTS"])
+    assert {"tau_s", "gain_k", "gain_l", "alpha", "battery_limit_pu"} <= set(constants["CONTROLLER_ARGUMENTS"])
+    for node, (package, filename, node_name) in constants["CONFIG"].items():
+        config = install / package / "share" / package / "config" / filename
+        assert config.is_file(), config
+        assert node_name == node
+    for names, node in (("PLANT_ARGUMENTS", "plant"), ("MODEL_ARGUMENTS", "plant"),
+                        ("CONTROLLER_ARGUMENTS", "controller"), ("LOGGER_ARGUMENTS", "mcap_logger")):
+        package, filename, node_name = constants["CONFIG"][node]
+        config = install / package / "share" / package / "config" / filename
+        defaults = yaml.safe_load(config.read_text())[f"/**/{node_name}"]["ros__parameters"]
+        assert set(constants[names]) <= set(defaults), (names, set(constants[names]) - set(defaults))
+    env = installed_env(workspace, 0)
+    started = [{kw.arg: kw.value.value for kw in call.keywords if isinstance(kw.value, ast.Constant)}
+               for call in ast.walk(tree) if isinstance(call, ast.Call) and getattr(call.func, "id", "") == "Node"]
+    assert {(n["package"], n["executable"]) for n in started} == {
+        ("nni_plant_sim", "plant_node"), ("nni_battery_controller", "controller_node"),
+        ("nni_msgs_adapter", "mcap_logger")}
+    for node in started:
+        assert os.access(resolve_executable(env, node["package"], node["executable"]), os.X_OK)
+    handlers = [call for call in ast.walk(tree) if isinstance(call, ast.Call)
+                and getattr(call.func, "id", "") == "OnProcessExit"]
+    (handler,) = handlers
+    target = {kw.arg: kw.value for kw in handler.keywords}["target_action"]
+    assert isinstance(target, ast.Name) and target.id == "plant"
+    assert "Shutdown" in ast.unparse(handler)

@@ -3,14 +3,32 @@
 from __future__ import annotations
 
 import json
+import math
+import os
+import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
+import numpy as np
+import pyarrow as pa
 import pytest
 
-from rosproc import fresh_domain_id, ros_env
+from nni_battery_controller.demo import (
+    build_parser,
+    compromised_reasons,
+    controller_parameters,
+    plant_parameters,
+    recording_name,
+    run_metadata,
+)
+from nni_msgs_adapter import contract
+from nni_msgs_adapter.recording import read_generator_run
+from nni_msgs_adapter.rerun_bridge import PROGRESS_PREFIX
+from nni_msgs_adapter.rerun_view import run_paths
+from rosproc import Probe, busy_processes, fresh_domain_id, node_processes, ros_env
 
 pytestmark = pytest.mark.ros
 
@@ -57,6 +75,8 @@ def test_lockstep_demo_is_fast_complete_and_leaves_nothing_running(tmp_path):
     assert run["dropped_samples"] == 0 and run["late_samples"] == 0
     assert run["samples"] == 500
     assert run["logger_counts"]["/plant/state"] == 501
+    for value in (*run["latency_ms"].values(), run["wall_time_s"]):  # no float noise
+        assert len(repr(value).split(".")[-1]) <= 6, value
     assert Path(run["recording"]).is_file()
 
 
@@ -70,3 +90,247 @@ def test_demo_bad_input_is_one_line(tmp_path):
         assert len(result.stderr.strip().splitlines()) == 1, (args, result.stderr)
         assert "Traceback" not in result.stderr
         assert not (tmp_path / "o" / "summary.json").exists()
+
+
+# --- the live Rerun stream ----------------------------------------------------------------
+
+
+def rrd_scalars(path: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per entity of a .rrd: the sim_time stamps (s) and values of its Scalars, sorted by time."""
+    from rerun.chunk import RrdReader
+
+    times: dict[str, list] = {}
+    values: dict[str, list] = {}
+    for chunk in RrdReader(path).stream():
+        batch = chunk.to_record_batch()
+        if "sim_time" in batch.schema.names and "Scalars:scalars" in batch.schema.names:
+            times.setdefault(chunk.entity_path, []).append(batch.column("sim_time").cast(pa.int64()).to_numpy())
+            values.setdefault(chunk.entity_path, []).extend(v[0] for v in batch.column("Scalars:scalars").to_pylist())
+    out = {}
+    for entity, parts in times.items():
+        t = np.concatenate(parts) * 1e-9
+        order = np.argsort(t, kind="stable")
+        out[entity] = (t[order], np.asarray(values[entity])[order])
+    return out
+
+
+def run_demo(args: list[str], domain: int, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([str(DEMO), *args, "--domain-id", str(domain)], env=ros_env(domain),
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def assert_stream_holds_every_sample(rrd: Path, summary_path: Path, labels: list[str]) -> None:
+    """Every answered sample of every run's recording is in the .rrd, at its simulated time from the run's start."""
+    series = rrd_scalars(rrd)
+    runs = json.loads(summary_path.read_text())["scenarios"]
+    assert len(runs) == len(labels)
+    for run, label in zip(runs, labels):
+        recorded = read_generator_run(run["recording"])
+        answered = recorded.answered
+        # The recording's own clock: t = 0 at the plant's first state, the run's start.
+        expected_t = recorded.t_s[answered]
+        assert expected_t[0] == 0.0
+        paths = run_paths(label)
+        t, angle = series[paths.angle]
+        assert t.size == answered.sum(), f"{label}: {t.size} of {answered.sum()} samples in the stream"
+        np.testing.assert_allclose(t, expected_t, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(angle, recorded.signals["angle_dev"][answered])
+        t_power, power = series[paths.power]
+        np.testing.assert_allclose(t_power, expected_t, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(power, recorded.signals["battery_power"][answered])
+        t_sat, saturated = series[paths.saturation]
+        np.testing.assert_allclose(t_sat, expected_t, rtol=0, atol=1e-9)
+        assert set(np.unique(saturated)) <= {0.0, 1.0}
+
+
+def test_live_rerun_lockstep_keeps_every_run_under_load(tmp_path):
+    """The issue's command on a loaded machine: all four runs, every sample, on simulated time from 0."""
+    domain = fresh_domain_id()
+    rrd = tmp_path / "live.rrd"
+    with busy_processes(2):
+        result = run_demo(["--rerun", "save", str(rrd), "--out", str(tmp_path)], domain)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert f"{rrd}" in result.stdout.splitlines()[-1]  # the final "wrote" line lists the .rrd
+    assert processes_in_domain(domain) == []
+    assert_stream_holds_every_sample(rrd, tmp_path / "summary.json", ["b=0", "b=0.2", "b=0.3", "b=inf"])
+    t, _ = rrd_scalars(rrd)[run_paths("b=0.3").angle]
+    np.testing.assert_allclose(t, np.arange(500) / 50.0, rtol=0, atol=1e-9)  # 10 s at 50/s, from 0
+
+
+def test_live_rerun_realtime_starts_at_zero_under_load(tmp_path):
+    """Realtime: the saturation phase at the start is there, t = 0 at the run's start (not the first sample seen)."""
+    domain = fresh_domain_id()
+    rrd = tmp_path / "live.rrd"
+    with busy_processes(2):
+        result = run_demo(["--mode", "realtime", "--b", "0.2", "0.3", "--duration", "3", "--rerun", "save", str(rrd),
+                           "--out", str(tmp_path)], domain)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert_stream_holds_every_sample(rrd, tmp_path / "summary.json", ["b=0.2", "b=0.3"])
+    t, saturated = rrd_scalars(rrd)[run_paths("b=0.2").saturation]
+    assert t[0] == 0.0 and saturated[t < 0.5].any()  # the saturation phase at the start is in the stream
+
+
+def test_demo_waits_for_the_bridge_before_the_plant_starts():
+    """With a bridge the plant waits for three pmu subscribers: controller, logger and the bridge."""
+    args = build_parser().parse_args([])
+    assert plant_parameters(args, with_bridge=True)["wait_for_subscribers"] == 3
+    assert plant_parameters(args, with_bridge=False)["wait_for_subscribers"] == 2
+
+
+def test_rerun_serve_prints_a_localhost_url_and_binds_to_localhost(tmp_path):
+    domain = fresh_domain_id()
+    demo = subprocess.Popen([str(DEMO), "--b", "0.3", "--duration", "1", "--rerun", "serve", "--out", str(tmp_path),
+                             "--domain-id", str(domain)], env=ros_env(domain), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        lines = []
+        deadline = time.monotonic() + 120
+        while not any(line.startswith("serving") for line in lines) and time.monotonic() < deadline:
+            lines.append(demo.stdout.readline())
+        (url,) = [line for line in lines if line.startswith("Rerun web viewer:")]
+        assert "http://127.0.0.1:9090/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A9876%2Fproxy" in url
+        listening = Path("/proc/net/tcp").read_text() + Path("/proc/net/tcp6").read_text()
+        # Local address column: 0100007F:2694 is 127.0.0.1:9876; nobody listens on 0.0.0.0:9876.
+        assert "0100007F:2694" in listening and "00000000:2694" not in listening
+    finally:
+        demo.send_signal(signal.SIGINT)
+        out, err = demo.communicate(timeout=60)
+    assert demo.returncode == 0, err
+    assert processes_in_domain(domain) == []
+
+
+# --- the demo's children die with it ------------------------------------------------------
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGKILL])
+def test_killed_demo_leaves_no_process_running(tmp_path, signum):
+    domain = fresh_domain_id()
+    demo = subprocess.Popen([str(DEMO), "--mode", "realtime", "--b", "0.3", "--duration", "60", "--out",
+                             str(tmp_path), "--domain-id", str(domain)], env=ros_env(domain),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 60
+    while len(processes_in_domain(domain)) < 3 and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert len(processes_in_domain(domain)) == 3, "logger, controller and plant should be running"
+    demo.send_signal(signum)
+    demo.wait(timeout=60)
+    deadline = time.monotonic() + 30
+    while processes_in_domain(domain) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert processes_in_domain(domain) == []
+
+
+# --- a run the battery's controller did not command alone ---------------------------------
+
+
+def test_rogue_commands_make_the_run_compromised(tmp_path):
+    """A stranger re-sending 5 pu right after each real command: non-zero exit, one line saying what, in summary.json.
+
+    Realtime, so that the rogue's command is the one in force until the next reporting
+    instant (issue 11, attacks 1 and 2): today the plant applies it; once it pairs with its
+    controller it drops it as foreign. Either way the run is compromised.
+    """
+    domain = fresh_domain_id()
+    rogue = Probe(domain, [contract.TOPIC_BATTERY_COMMAND])
+
+    def follow(msg):
+        stamp_ns, power = contract.command_from_message(msg)
+        if power != 5.0:  # the controller's command, not the rogue's own
+            rogue.publish(contract.TOPIC_BATTERY_COMMAND, contract.command_message(stamp_ns + 1_000_000, 5.0))
+
+    rogue.on_message(contract.TOPIC_BATTERY_COMMAND, follow)
+    try:
+        result = run_demo(["--mode", "realtime", "--b", "0.3", "--duration", "2", "--out", str(tmp_path)], domain)
+    finally:
+        rogue.close()
+    assert result.returncode == 3, result.stdout + result.stderr
+    (line,) = [line for line in result.stdout.splitlines() if "b = 0.3" in line]
+    assert "COMPROMISED" in line and "stable" not in line and "SYNCHRONISM" not in line
+    assert len(result.stderr.strip().splitlines()) == 1 and "compromised" in result.stderr
+    (run,) = json.loads((tmp_path / "summary.json").read_text())["scenarios"]
+    reasons = run["compromised"]
+    assert reasons.get("max_abs_applied_power_pu", 0.0) > 0.3 or reasons.get("foreign_commands", 0) > 0
+
+
+def test_compromised_reasons():
+    run = SimpleNamespace(battery_power_pu=np.array([0.0, 0.3, -0.3]))
+    assert compromised_reasons({}, run, 0.3) == {}
+    assert compromised_reasons({"foreign_commands": 2, "writer_alarms": 0}, run, 0.3) == {"foreign_commands": 2}
+    assert compromised_reasons({}, run, 0.2) == {"max_abs_applied_power_pu": 0.3}
+    assert compromised_reasons({"max_abs_applied_power_pu": 5.0}, run, 0.3) == {"max_abs_applied_power_pu": 5.0}
+
+
+# --- names and metadata -------------------------------------------------------------------
+
+
+def test_recording_names_follow_the_scenario():
+    args = build_parser().parse_args([])
+    paper = plant_parameters(args, with_bridge=False)
+    assert recording_name(0.3, paper) == "paper_b0.3.mcap"
+    assert recording_name(math.inf, {**paper, "mode": "realtime", "duration_s": 3.0}) == "paper_binf.mcap"
+    fault = {**paper, "scenario": "transfer_limit_fault", "clearing_time_s": 0.2}
+    assert recording_name(0.2, fault) == "transfer_limit_fault_b0.2.mcap"
+    assert recording_name(0.2, {**paper, "delta0_rad": 0.5}) == "initial_angle_b0.2.mcap"
+
+
+def test_run_metadata_holds_every_node_parameter():
+    args = build_parser().parse_args(["--b", "0.3"])
+    plant = plant_parameters(args, with_bridge=False)
+    meta = run_metadata(args, plant, controller_parameters(args, 0.3))
+    assert set(meta) == {"scenario", "plant", "controller", "mode", "rate_hz", "software_version"}
+    assert meta["scenario"] == {"name": "initial_angle", "delta0_rad": 0.2, "speed0_rad_s": 0.0}
+    assert meta["plant"]["mode"] == "lockstep" and meta["plant"]["p_mech_pu"] == 0.8
+    assert meta["controller"]["battery_limit_pu"] == 0.3 and meta["controller"]["gain_l"] == 1.1
+    json.dumps(meta)  # it goes to the logger as JSON text
+
+
+def test_help_states_the_domain_id():
+    result = subprocess.run([str(DEMO), "--help"], capture_output=True, text=True, timeout=60)
+    text = " ".join(result.stdout.split())
+    assert "$ROS_DOMAIN_ID, else 42" in text and "domain of its own" not in text
+
+
+def test_realtime_run_shows_its_progress_on_a_terminal(tmp_path):
+    """On a terminal a realtime run counts its simulated time up to the duration; off a terminal it prints nothing."""
+    import pty
+
+    domain = fresh_domain_id()
+    master, slave = pty.openpty()
+    try:
+        result = subprocess.run([str(DEMO), "--mode", "realtime", "--b", "0.3", "--duration", "2", "--out",
+                                 str(tmp_path), "--domain-id", str(domain)], env=ros_env(domain),
+                                stdout=subprocess.PIPE, stderr=slave, text=True, timeout=120)
+        os.close(slave)
+        shown = b""
+        while True:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:  # the terminal's other end is closed and drained
+                break
+            if not chunk:
+                break
+            shown += chunk
+    finally:
+        os.close(master)
+    assert result.returncode == 0
+    text = shown.decode(errors="replace")
+    # Counted from the plant's start line to its end, then the line is cleared.
+    assert "t =   0.0 of 2 s" in text and "t =   1.5 of 2 s" in text and text.endswith("\r\x1b[K"), text
+    assert "of 2 s" not in result.stdout
+
+
+def test_a_plant_told_to_wait_for_the_bridge_starts_only_when_the_bridge_hears_it(tmp_path):
+    """The bridge is counted on pmu only once it hears the plant and the controller; then it gets the whole run."""
+    domain = fresh_domain_id()
+    with node_processes(tmp_path, domain) as start:
+        start("controller", "nni_battery_controller.controller_node", {"battery_limit_pu": 0.3})
+        plant = start("plant", "nni_plant_sim.plant_node", {"mode": "lockstep", "duration_s": 1.0,
+                                                            "wait_for_subscribers": 2})
+        time.sleep(3.0)
+        assert "started in" not in plant.output(), "two subscribers were asked for: the controller and the bridge"
+        bridge = start("rerun_bridge", "nni_msgs_adapter.rerun_bridge", {"sink": "save",
+                                                                           "path": str(tmp_path / "live.rrd")})
+        assert plant.wait(timeout=60) == 0
+        line = bridge.wait_for_line(PROGRESS_PREFIX, 30.0, lambda line: '"samples": 50,' in line)
+    assert json.loads(line[len(PROGRESS_PREFIX):]) == {"run": 1, "label": "b=0.3", "samples": 50, "first_t_s": 0.0,
+                                                       "last_t_s": 0.98}

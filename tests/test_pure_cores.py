@@ -33,6 +33,7 @@ PURE_MODULES = [
     "nni_msgs_adapter.defaults",
     "nni_msgs_adapter.palette",
     "nni_battery_controller.options",
+    "nni_msgs_adapter.processes",
 ]
 
 PROBE = """

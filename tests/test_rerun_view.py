@@ -24,6 +24,7 @@ from nni_msgs_adapter.rerun_view import (
     blueprint,
     log_trajectory,
     open_recording,
+    run_color,
     run_paths,
 )
 
@@ -262,3 +263,60 @@ def test_blueprint_file(tmp_path: Path) -> None:
     # Bounds are given with d' up and stored for the y-down 2D space.
     assert stored["VisualBounds2D:range"] == {"x_range": [-1.0, 1.6], "y_range": [-4.5, 2.0]}
     assert stored["VisibleTimeRanges:ranges"]["timeline"] == "pmu_time"
+
+
+def test_step_signals_are_never_averaged_and_every_series_says_its_unit(batch_file: tuple) -> None:
+    """A 0/1 flag drawn at default zoom must not show 0.5, nor a held battery power a mean of two values."""
+    entities = read_entities(batch_file[0])
+    paths = run_paths("b=0.3")
+    for path in (paths.saturation, paths.power, paths.limit_upper, paths.limit_lower):
+        assert static_value(entities[path], "SeriesLines:aggregation_policy") == [1], path  # Off
+        assert static_value(entities[path], "SeriesLines:interpolation_mode") == [2], path  # StepAfter
+    names = {path: static_value(entities[path], "SeriesLines:names")[0]
+             for path in (paths.angle, paths.frequency, paths.power, paths.saturation, paths.w_hat)}
+    assert names == {paths.angle: "d (rad) b=0.3", paths.frequency: "Δf (Hz) b=0.3",
+                     paths.power: "P_ST (pu) b=0.3", paths.saturation: "saturated (0/1) b=0.3",
+                     paths.w_hat: "W_hat (pu rad) b=0.3"}
+    assert static_value(entities[paths.omega_boundary], "LineStrips2D:labels") == ["Omega b=0.3"]
+
+
+def test_run_colour_depends_on_b_only() -> None:
+    assert [run_color(b) for b in (0.0, 0.2, 0.3, math.inf)] == list(PALETTE[:4])
+    others = [run_color(b) for b in (0.1, 0.25, 0.5, 1.0, 2.0)]
+    assert all(colour in PALETTE[4:] for colour in others)
+    assert run_color(0.25) == run_color(0.25)
+
+
+def test_runs_in_separate_files_overlay_when_merged(tmp_path: Path) -> None:
+    """Two processes' files (as two replays or two live runs write them) merge into one recording with both runs."""
+    for label, b in RUNS.items():
+        recording, _ = open_recording("nni_battery_control", ("save", tmp_path / f"{label}.rrd"))
+        log_trajectory(recording, label, **damped_run(b, n=100), b=b, f0_hz=50.0)
+        recording.disconnect()
+    merged = tmp_path / "merged.rrd"
+    result = subprocess.run([RERUN_CLI, "rrd", "merge", *[tmp_path / f"{label}.rrd" for label in RUNS], "-o", merged],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    reader = RrdReader(merged)
+    assert len(reader.recordings()) == 1  # one recording: the viewer shows both runs in the same views
+    entities = read_entities(merged)
+    for label in RUNS:
+        t, _ = scalars(entities[run_paths(label).angle])
+        assert t.size == 100
+
+
+def test_time_series_views_show_simulated_seconds_from_zero(tmp_path: Path) -> None:
+    """Every time-series view: x axis from t = 0 s on, linked across views, all of each run visible."""
+    path = tmp_path / "layout.rbl"
+    blueprint().save("nni_test", path)
+    reader = RrdReader(path)
+    axes, ranges = [], []
+    for chunk in reader.stream(store=reader.blueprints()[0]):
+        batch = chunk.to_record_batch()
+        if "TimeAxis:view_range" in batch.schema.names:
+            axes.append((batch.column("TimeAxis:view_range").to_pylist()[-1][0],
+                         batch.column("TimeAxis:link").to_pylist()[-1][0]))
+        if "VisibleTimeRanges:ranges" in batch.schema.names:
+            ranges.append(batch.column("VisibleTimeRanges:ranges").to_pylist()[-1][0])
+    assert axes == [({"start": 0, "end": None}, 2)] * 5  # five time-series views, linked to the global axis
+    assert ranges.count({"timeline": TIMELINE, "range": {"start": None, "end": None}}) == 5

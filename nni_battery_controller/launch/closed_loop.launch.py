@@ -1,49 +1,103 @@
 """Launch the closed loop of one generator: plant, controller and MCAP logger.
 
     ros2 launch nni_battery_controller closed_loop.launch.py \
-        namespace:=gen1 mode:=realtime battery_limit_pu:=0.3 output_path:=run.mcap
+        namespace:=gen1 mode:=lockstep duration_s:=10.0 battery_limit_pu:=0.3 \
+        scenario:=transfer_limit_fault clearing_time_s:=0.2 output_path:=run.mcap
 
-Each node reads its defaults from its package's config/*.yaml; the arguments
-below override the ones people change most. All topics are relative, so the
-namespace argument puts one generator's loop under /<namespace>.
+Every argument is a node parameter under its own name (``ros2 launch ...
+--show-args`` lists them with their defaults). Each node's parameters are its
+package's ``config/*.yaml`` (where the defaults live; the arguments' defaults
+are read from the same files) and then the arguments. The model arguments
+(``p_mech_pu``, ``p_max_pu``, ``inertia_h_s``, ``f0_hz``) go to the plant and
+to the controller's model of it, ``pmu_rate_hz`` to the plant and as
+``sample_rate_hz`` to the controller. All topics are relative, so the namespace
+argument puts one generator's loop under /<namespace>. With ``duration_s > 0``
+the launch shuts down when the plant exits: the controller and the logger get
+SIGINT, and the logger finishes the recording.
 """
 
+import os
+
+from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
+from launch.actions import DeclareLaunchArgument, EmitEvent, RegisterEventHandler, SetEnvironmentVariable
 from launch.conditions import IfCondition
+from launch.event_handlers import OnProcessExit
+from launch.events import Shutdown
 from launch.substitutions import EnvironmentVariable, LaunchConfiguration
 from launch_ros.actions import Node
 
+from nni_msgs_adapter.processes import parameter_text
+from nni_msgs_adapter.ros_params import load_defaults
+
+#: Launch arguments that are plant parameters (package nni_plant_sim, config/plant.yaml).
+PLANT_ARGUMENTS = (
+    "mode", "pmu_rate_hz", "duration_s", "scenario", "delta0_rad", "speed0_rad_s", "step_p_mech_pu",
+    "step_duration_s", "fault_p_max_pu", "clearing_time_s", "damping_pu", "battery_rating_pu",
+)
+#: Launch arguments that are controller parameters (package nni_battery_controller, config/controller.yaml).
+CONTROLLER_ARGUMENTS = ("tau_s", "gain_k", "gain_l", "alpha", "battery_limit_pu")
+#: Model parameters shared by the plant and the controller's model of it (the plant's defaults).
+MODEL_ARGUMENTS = ("p_mech_pu", "p_max_pu", "inertia_h_s", "f0_hz")
+#: Launch arguments that are logger parameters (package nni_msgs_adapter, config/mcap_logger.yaml).
+LOGGER_ARGUMENTS = ("output_path",)
+#: (package, config file, node name) of each node.
+CONFIG = {
+    "plant": ("nni_plant_sim", "plant.yaml", "plant"),
+    "controller": ("nni_battery_controller", "controller.yaml", "controller"),
+    "mcap_logger": ("nni_msgs_adapter", "mcap_logger.yaml", "mcap_logger"),
+}
+
+
+def config_file(node: str) -> str:
+    """The installed config/*.yaml of ``node``."""
+    package, filename, _ = CONFIG[node]
+    return os.path.join(get_package_share_directory(package), "config", filename)
+
+
+def arguments(node: str, names) -> list:
+    """DeclareLaunchArgument for each parameter ``names`` of ``node``, its default from the node's YAML."""
+    defaults = load_defaults(*CONFIG[node])
+    return [DeclareLaunchArgument(name, default_value=parameter_text(defaults[name]),
+                                  description=f"{node} parameter {name} (default from {CONFIG[node][1]})")
+            for name in names]
+
 
 def generate_launch_description():
-    args = {
-        "namespace": ("", "namespace of this generator's nodes and topics"),
-        "mode": ("realtime", "realtime (wall clock) or lockstep (simulated /clock)"),
-        "pmu_rate_hz": ("50.0", "PMU reporting rate, frames/s"),
-        "battery_limit_pu": ("0.3", "battery power limit b, pu (.inf for unlimited)"),
-        "duration_s": ("0.0", "simulated seconds before the plant exits; 0 runs until stopped"),
-        "output_path": ("", "MCAP file of the run; empty: a dated name in the working directory"),
-        "use_security": ("false", "true: SROS2 (Enforce), each node in its enclave /nni/<node> of the keystore "
-                                  "made by scripts/sros2_keystore; ROS 2 Jazzy installs only"),
-        "keystore": (EnvironmentVariable("ROS_SECURITY_KEYSTORE", default_value=""), "SROS2 keystore folder"),
-    }
-    config = {name: LaunchConfiguration(name) for name in args}
-    secure = IfCondition(config["use_security"])
+    config = {name: LaunchConfiguration(name)
+              for name in (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS, *CONTROLLER_ARGUMENTS, *LOGGER_ARGUMENTS)}
+    namespace = LaunchConfiguration("namespace")
+    secure = IfCondition(LaunchConfiguration("use_security"))
+    plant = Node(package="nni_plant_sim", executable="plant_node", name="plant", namespace=namespace,
+                 ros_arguments=["--enclave", "/nni/plant"],
+                 parameters=[config_file("plant"),
+                             {**{name: config[name] for name in (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS)},
+                              "wait_for_subscribers": 2}])  # the controller and the logger
+    controller = Node(package="nni_battery_controller", executable="controller_node", name="controller",
+                      namespace=namespace, ros_arguments=["--enclave", "/nni/controller"],
+                      parameters=[config_file("controller"),
+                                  {**{name: config[name] for name in (*CONTROLLER_ARGUMENTS, *MODEL_ARGUMENTS)},
+                                   "sample_rate_hz": config["pmu_rate_hz"]}])
+    logger = Node(package="nni_msgs_adapter", executable="mcap_logger", name="mcap_logger", namespace=namespace,
+                  ros_arguments=["--enclave", "/nni/mcap_logger"],
+                  parameters=[config_file("mcap_logger"), {name: config[name] for name in LOGGER_ARGUMENTS}])
     return LaunchDescription([
-        *(DeclareLaunchArgument(name, default_value=default, description=text)
-          for name, (default, text) in args.items()),
+        DeclareLaunchArgument("namespace", default_value="", description="namespace of this generator's nodes"),
+        *arguments("plant", (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS)),
+        *arguments("controller", CONTROLLER_ARGUMENTS),
+        *arguments("mcap_logger", LOGGER_ARGUMENTS),
+        DeclareLaunchArgument("use_security", default_value="false",
+                              description="true: SROS2 (Enforce), each node in its enclave /nni/<node> of the "
+                                          "keystore made by scripts/sros2_keystore; ROS 2 Jazzy installs only"),
+        DeclareLaunchArgument("keystore", default_value=EnvironmentVariable("ROS_SECURITY_KEYSTORE", default_value=""),
+                              description="SROS2 keystore folder"),
         SetEnvironmentVariable("ROS_SECURITY_ENABLE", "true", condition=secure),
         SetEnvironmentVariable("ROS_SECURITY_STRATEGY", "Enforce", condition=secure),
-        SetEnvironmentVariable("ROS_SECURITY_KEYSTORE", config["keystore"], condition=secure),
-        Node(package="nni_msgs_adapter", executable="mcap_logger", name="mcap_logger",
-             ros_arguments=["--enclave", "/nni/mcap_logger"],
-             namespace=config["namespace"], parameters=[{"output_path": config["output_path"]}]),
-        Node(package="nni_battery_controller", executable="controller_node", name="controller",
-             ros_arguments=["--enclave", "/nni/controller"], namespace=config["namespace"],
-             parameters=[{"battery_limit_pu": config["battery_limit_pu"],
-                          "sample_rate_hz": config["pmu_rate_hz"]}]),
-        Node(package="nni_plant_sim", executable="plant_node", name="plant", namespace=config["namespace"],
-             ros_arguments=["--enclave", "/nni/plant"],
-             parameters=[{"mode": config["mode"], "pmu_rate_hz": config["pmu_rate_hz"],
-                          "duration_s": config["duration_s"], "wait_for_subscribers": 2}]),
+        SetEnvironmentVariable("ROS_SECURITY_KEYSTORE", LaunchConfiguration("keystore"), condition=secure),
+        logger,
+        controller,
+        plant,
+        # The run is over when the plant exits (duration_s > 0): stop the others, finish the recording.
+        RegisterEventHandler(OnProcessExit(target_action=plant, on_exit=[
+            EmitEvent(event=Shutdown(reason="the plant finished its run"))])),
     ])

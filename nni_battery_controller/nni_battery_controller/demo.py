@@ -1,12 +1,19 @@
 """``nni-demo``: the distributed closed loop, one run per battery limit, recorded and summarised.
 
-For each b it starts three processes (MCAP logger, controller, plant) on a ROS
-domain of its own with localhost-only discovery, lets the plant run its
-scenario to the end, stops the others with SIGINT (SIGKILL after a grace
+For each b it starts three processes (MCAP logger, controller, plant) with
+localhost-only discovery on one ROS domain (``--domain-id``, else
+$ROS_DOMAIN_ID, else 42; the runs follow one another on it), lets the plant run
+its scenario to the end, stops the others with SIGINT (SIGKILL after a grace
 period), and reads the recording back to write ``OUT/summary.json``: the keys of
 ``nni-simulate --json`` per run plus loop latency (p50, p99, max in ms, from
 measurement to command arrival at the plant) and dropped / late sample counts
-from the plant's final diagnostics. The orchestrator creates no ROS node of its own.
+from the plant's final diagnostics. A run in which the battery was commanded by
+anyone but its controller, or applied more than b, is reported as compromised
+(exit status 3). With ``--rerun`` a Rerun bridge is part of every run: the
+plant starts only once the bridge hears it, and a run ends only when the
+bridge has logged every sample the recording holds. The orchestrator creates
+no ROS node of its own; killed (SIGINT, SIGTERM, SIGKILL), it takes its
+processes with it.
 """
 
 from __future__ import annotations
@@ -16,9 +23,11 @@ import json
 import math
 import os
 import signal
-import subprocess
+import socket
 import sys
 import time
+import urllib.parse
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
@@ -38,15 +47,27 @@ from nni_msgs_adapter.cli_support import (
     writable_output,
 )
 from nni_msgs_adapter.mcap_logger import COUNTS_PREFIX
-from nni_msgs_adapter.recording import read_generator_run
-from nni_msgs_adapter.rerun_bridge import READY_TEXT
+from nni_msgs_adapter.processes import ChildError, Supervisor
+from nni_msgs_adapter.recording import GeneratorRun, read_generator_run
+from nni_msgs_adapter.rerun_bridge import PROGRESS_PREFIX, READY_TEXT
 from nni_msgs_adapter.rerun_view import display_missing
+from nni_msgs_adapter.defaults import controller_defaults, plant_defaults
 from nni_plant_sim.model import SmibParams
+from nni_plant_sim.plant_node import SUMMARY_PREFIX
+from nni_plant_sim.scenarios import SCENARIO_FIELDS
 
 #: Seconds the logger gets after the plant ends, for the last reliable messages to land.
 DRAIN_S = 0.5
-#: Seconds a process gets to exit after SIGINT before SIGKILL.
-STOP_GRACE_S = 10.0
+#: Seconds the Rerun bridge gets, once the run's recording is read, to report every one of its samples.
+BRIDGE_WAIT_S = 30.0
+#: Exit status of a call with a compromised run (the battery commanded by a stranger, or beyond b).
+EXIT_COMPROMISED = 3
+#: The plant's trust counters (INTERFACES.md item 1) of which any non-zero one compromises a run.
+TRUST_COUNTERS = ("foreign_commands", "unsolicited_commands", "writer_alarms")
+#: Plant parameters that set up a run without changing its case (the recording name ignores them).
+RUN_CONTROL = frozenset({"mode", "duration_s", "pmu_rate_hz", "wait_for_subscribers"})
+#: Where the Rerun web viewer of ``--rerun serve`` listens (gRPC proxy, web page).
+SERVE_GRPC_PORT, SERVE_WEB_PORT = 9876, 9090
 
 
 def build_parser() -> OneLineParser:
@@ -68,146 +89,258 @@ def build_parser() -> OneLineParser:
     return parser
 
 
-def recording_name(b: float) -> str:
-    """File name of one run's recording: paper_b0.3.mcap, paper_binf.mcap."""
-    return f"paper_b{'inf' if math.isinf(b) else f'{b:g}'}.mcap"
+def recording_name(b: float, plant: dict | None = None) -> str:
+    """File name of one run's recording: paper_b0.3.mcap for the paper's case, <scenario>_b0.3.mcap otherwise.
+
+    ``plant`` holds the plant parameters the demo sets (None: the paper's case);
+    the paper's case is the package defaults for everything but the run's set-up
+    (mode, duration, rate, subscribers to wait for).
+    """
+    defaults = plant_defaults()
+    case = {key: value for key, value in (plant or {}).items() if key not in RUN_CONTROL}
+    paper = all(defaults.get(key) == value for key, value in case.items())
+    scenario = case.get("scenario", defaults["scenario"])
+    return f"{'paper' if paper else scenario}_b{'inf' if math.isinf(b) else f'{b:g}'}.mcap"
 
 
-def node_command(module: str, params: dict | None = None, ros_args: tuple = ()) -> list[str]:
-    """``python -m module --ros-args [ros_args] -p k:=v ...``, values as ROS command-line YAML."""
-    args = list(ros_args)
-    for key, value in (params or {}).items():
-        args += ["-p", f"{key}:={parameter_text(value)}"]
-    return [sys.executable, "-m", module, *(["--ros-args", *args] if args else [])]
+def plant_parameters(args, with_bridge: bool) -> dict:
+    """The plant parameters of one run that differ from the package defaults (or set up the run)."""
+    # It waits for the controller and the logger, and for the Rerun bridge when there is one.
+    return {**args.model.plant_node_parameters(), "mode": args.mode, "duration_s": args.duration,
+            "pmu_rate_hz": args.rate, "wait_for_subscribers": 3 if with_bridge else 2}
 
 
-def parameter_text(value) -> str:
-    """A parameter value as ROS command-line YAML (.inf for inf, true/false for bools)."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, float) and math.isinf(value):
-        return ".inf" if value > 0 else "-.inf"
-    return str(value)
+def controller_parameters(args, b: float) -> dict:
+    """The controller parameters of one run that differ from the package defaults."""
+    return {**args.model.controller_node_parameters(), "battery_limit_pu": b, "sample_rate_hz": args.rate}
 
 
-class Processes:
-    """The run's child processes; all stopped (SIGINT, then SIGKILL) when the block ends."""
-
-    def __init__(self, env: dict, log_dir: Path):
-        self.env, self.log_dir, self.children = env, log_dir, {}
-
-    def start(self, name: str, module: str, params: dict) -> subprocess.Popen:
-        log = open(self.log_dir / f"{name}.log", "wb")
-        proc = subprocess.Popen(node_command(module, params), env=self.env, stdout=log, stderr=subprocess.STDOUT,
-                                start_new_session=True)
-        self.children[name] = (proc, log)
-        return proc
-
-    def stop(self, name: str) -> int:
-        proc, log = self.children[name]
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=STOP_GRACE_S)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        log.close()
-        return proc.returncode
-
-    def wait_for_output(self, name: str, text: str, timeout_s: float) -> None:
-        """Wait until process ``name`` printed ``text``; CliError if it exits or times out first."""
-        deadline = time.monotonic() + timeout_s
-        while text not in self.output(name):
-            proc = self.children[name][0]
-            if proc.poll() is not None or time.monotonic() > deadline:
-                raise CliError(f"{name} did not start: {self.output(name).strip()[-300:]}")
-            time.sleep(0.05)
-
-    def output(self, name: str) -> str:
-        return (self.log_dir / f"{name}.log").read_text(errors="replace")
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        for name in list(self.children):
-            self.stop(name)
+def software_version() -> str:
+    """Version of the installed nni_battery_controller package."""
+    try:
+        return metadata.version("nni_battery_controller")
+    except metadata.PackageNotFoundError:
+        return "unknown"
 
 
-def trajectory_from_recording(path: Path, plant: SmibParams, ctrl: ControllerParams) -> tuple[Trajectory, dict]:
-    """The sampled trajectory and the plant's last diagnostics from a run's MCAP (read as replay reads it)."""
-    run = read_generator_run(path)
-    traj = Trajectory(plant, ctrl, run.t_s, run.delta_rad, run.speed_rad_s, run.signals["x3"], run.battery_power_pu,
+def run_metadata(args, plant: dict, controller: dict) -> dict:
+    """What the logger stores as the recording's ``nni_run`` metadata (INTERFACES.md item 2)."""
+    plant_values = {**plant_defaults(), **plant}
+    scenario = plant_values["scenario"]
+    options = {key: value for key, value in plant_values.items() if key in SCENARIO_FIELDS.get(scenario, ())}
+    return {"scenario": {"name": scenario, **options}, "plant": plant_values,
+            "controller": {**controller_defaults(), **controller}, "mode": args.mode, "rate_hz": args.rate,
+            "software_version": software_version()}
+
+
+
+def trajectory_from_recording(run: GeneratorRun, plant: SmibParams, ctrl: ControllerParams) -> Trajectory:
+    """The sampled trajectory of a run's recording (read as replay reads it)."""
+    return Trajectory(plant, ctrl, run.t_s, run.delta_rad, run.speed_rad_s, run.signals["x3"], run.battery_power_pu,
                       run.signals["w"], run.saturated, np.empty(0))
-    return traj, run.diagnostics
 
 
 def rerun_sink(words) -> dict:
-    """Bridge parameters for ``--rerun`` words: save PATH | serve | spawn."""
-    sink = words[0]
-    if sink not in ("save", "serve", "spawn") or (sink == "save") != (len(words) == 2) or len(words) > 2:
-        raise CliError("--rerun takes 'save PATH', 'serve' or 'spawn'")
+    """What ``--rerun`` asks for: save PATH | serve [ADDRESS] | spawn (ADDRESS: where the viewer listens)."""
+    sink, rest = words[0], words[1:]
+    if sink not in ("save", "serve", "spawn") or len(rest) != {"save": 1, "serve": len(rest[:1]), "spawn": 0}[sink]:
+        raise CliError("--rerun takes 'save PATH', 'serve [ADDRESS]' (default 127.0.0.1) or 'spawn'")
     if sink == "save":
         try:
-            path = writable_output(words[1])
+            path = writable_output(rest[0])
         except argparse.ArgumentTypeError as exc:
             raise CliError(f"--rerun save: {exc}") from None
         return {"sink": "save", "path": str(path)}
     if sink == "spawn" and display_missing():
         raise CliError("--rerun spawn needs a display (DISPLAY and WAYLAND_DISPLAY are unset): "
                        "use --rerun save PATH or --rerun serve")
+    if sink == "serve":
+        return {"sink": "serve", "address": rest[0] if rest else "127.0.0.1"}
     return {"sink": sink}
 
 
-def run_one(args, b: float, env: dict, out: Path) -> tuple[dict, Trajectory]:
-    """One run: start logger, controller, plant; wait for the plant; summarise its recording."""
-    recording = out / recording_name(b)
-    logs = out / "logs" / recording.stem
-    logs.mkdir(parents=True, exist_ok=True)
-    started = time.monotonic()
-    with Processes(env, logs) as procs:
-        procs.start("mcap_logger", "nni_msgs_adapter.mcap_logger",
-                    {"output_path": str(recording), "discovery_period_s": 0.1})
-        procs.start("controller", "nni_battery_controller.controller_node",
-                    {**args.model.controller_node_parameters(), "battery_limit_pu": b, "sample_rate_hz": args.rate})
-        plant = procs.start("plant", "nni_plant_sim.plant_node",
-                            {**args.model.plant_node_parameters(), "mode": args.mode, "duration_s": args.duration,
-                             "pmu_rate_hz": args.rate, "wait_for_subscribers": 2})
-        limit = 60.0 + (args.duration if args.mode == "realtime" else args.duration * 2)
+def start_viewer(viewer: Supervisor, sink: dict):
+    """Start the Rerun bridge (and for ``serve`` the web viewer it streams to); return the bridge."""
+    params = dict(sink)
+    if sink["sink"] == "serve":
+        # The SDK's own server listens on every interface; the rerun CLI's binds where it is told.
+        host = sink["address"]
+        viewer.start("rerun_viewer", [str(Path(sys.executable).parent / "rerun"), "--serve-web", "--bind", host,
+                                      "--port", str(SERVE_GRPC_PORT), "--web-viewer-port", str(SERVE_WEB_PORT)])
+        proxy = f"rerun+http://{host}:{SERVE_GRPC_PORT}/proxy"
+        params = {"sink": "connect", "url": proxy}
+        wait_for_port(viewer["rerun_viewer"], host, SERVE_GRPC_PORT)
+        print(f"Rerun web viewer: http://{host}:{SERVE_WEB_PORT}/?url={urllib.parse.quote(proxy, safe='')}",
+              flush=True)
+    bridge = viewer.start_node("rerun_bridge", "nni_msgs_adapter.rerun_bridge", params)
+    try:
+        bridge.wait_for_line(READY_TEXT, timeout_s=30.0)
+    except ChildError as error:
+        raise CliError(f"the Rerun bridge did not start: {error}") from None
+    return bridge
+
+
+def wait_for_port(child, host: str, port: int, timeout_s: float = 30.0) -> None:
+    """Wait until ``child`` accepts TCP connections on host:port; CliError if it exits or times out."""
+    deadline = time.monotonic() + timeout_s
+    while True:
         try:
-            status = plant.wait(timeout=limit)
-        except subprocess.TimeoutExpired:
-            raise CliError(f"the plant did not finish within {limit:.0f} s (logs in {logs})") from None
+            socket.create_connection((host, port), timeout=0.5).close()
+            return
+        except OSError:
+            if child.poll() is not None or time.monotonic() > deadline:
+                raise CliError(f"the Rerun web viewer did not listen on {host}:{port}: {child.tail()}") from None
+            time.sleep(0.1)
+
+
+def compromised_reasons(plant_summary: dict, run: GeneratorRun, b: float) -> dict:
+    """Why a run cannot be trusted (empty if it can): non-zero trust counters, or |P_ST| applied above b.
+
+    The largest power applied is the plant's own count where it reports one, and
+    in any case the largest ``plant/state`` battery power in the recording.
+    """
+    reasons = {key: int(plant_summary[key]) for key in TRUST_COUNTERS if int(plant_summary.get(key, 0))}
+    recorded = float(np.max(np.abs(run.battery_power_pu))) if run.battery_power_pu.size else 0.0
+    applied = max(recorded, float(plant_summary.get("max_abs_applied_power_pu", 0.0)))
+    if applied > b + 1e-12:
+        reasons["max_abs_applied_power_pu"] = applied
+    return reasons
+
+
+def compromised_text(b: float, reasons: dict) -> str:
+    """One line saying why a run is compromised."""
+    words = []
+    if "max_abs_applied_power_pu" in reasons:
+        words.append(f"|P_ST| {reasons['max_abs_applied_power_pu']:.4f} pu applied, above b = {b:g} pu")
+    words += [f"{reasons[key]} {key.replace('_', ' ')}" for key in TRUST_COUNTERS if key in reasons]
+    return "COMPROMISED (not a valid result): " + "; ".join(words)
+
+
+def plant_summary(output: str) -> dict:
+    """The final diagnostics values the plant printed at exit."""
+    for line in output.splitlines():
+        if line.startswith(SUMMARY_PREFIX):
+            return json.loads(line[len(SUMMARY_PREFIX):])
+    raise CliError("the plant did not report its final diagnostics")
+
+
+def wait_for_plant(plant, args, b: float, limit_s: float) -> None:
+    """Wait for the plant's final summary line; on a terminal, show a realtime run's progress."""
+    show = args.mode == "realtime" and sys.stderr.isatty()
+    deadline, started, shown = time.monotonic() + limit_s, None, ""
+    while SUMMARY_PREFIX not in plant.output():
+        if plant.poll() is not None:
+            return
+        if time.monotonic() > deadline:
+            raise CliError(f"the plant did not finish within {limit_s:.0f} s (logs in {plant.log_path.parent})")
+        if show:
+            if started is None and "started in" in plant.output():
+                started = time.monotonic()
+            if started is not None:
+                # Realtime: simulated time runs with the wall clock from the plant's start.
+                elapsed_s = min(time.monotonic() - started, args.duration)
+                text = f"\r  b = {b:<5g} t = {elapsed_s:5.1f} of {args.duration:g} s"
+                if text != shown:
+                    print(text, end="", file=sys.stderr, flush=True)
+                    shown = text
+        time.sleep(0.05)
+    if show:
+        print("\r\033[K", end="", file=sys.stderr, flush=True)
+
+
+def wait_for_bridge(bridge, index: int, run: GeneratorRun, logs: Path) -> None:
+    """Wait until the Rerun bridge reports run ``index`` with every answered sample of the recording."""
+    answered = run.answered
+    expected, last_t_s = int(answered.sum()), float(run.t_s[answered][-1]) if answered.any() else math.nan
+
+    def progress(line: str) -> dict:
+        return json.loads(line[len(PROGRESS_PREFIX):])
+
+    try:
+        line = bridge.wait_for_line(PROGRESS_PREFIX, BRIDGE_WAIT_S,
+                                    lambda line: progress(line)["run"] == index
+                                    and progress(line)["samples"] >= expected)
+    except ChildError:
+        reports = [progress(line[line.find(PROGRESS_PREFIX):]) for line in bridge.output().splitlines()
+                   if PROGRESS_PREFIX in line]
+        got = max((r["samples"] for r in reports if r["run"] == index), default=0)
+        raise CliError(f"the Rerun stream is partial: the bridge logged {got} of the {expected} samples of run "
+                       f"{index} within {BRIDGE_WAIT_S:g} s (logs in {logs})") from None
+    report = progress(line)
+    if report["samples"] != expected or not math.isclose(report["last_t_s"], last_t_s, abs_tol=1e-6):
+        raise CliError(f"the Rerun stream does not match the recording for run {index}: {report['samples']} "
+                       f"samples up to t = {report['last_t_s']:.3f} s, recorded {expected} up to {last_t_s:.3f} s")
+
+
+def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -> tuple[dict, Trajectory]:
+    """One run: start logger, controller, plant; wait for the plant; summarise its recording.
+
+    With a Rerun ``bridge`` (run ``index`` of its stream), the plant waits for it
+    too, and the run ends only when the bridge has logged every recorded sample.
+    """
+    plant_params = plant_parameters(args, with_bridge=bridge is not None)
+    controller_params = controller_parameters(args, b)
+    recording = out / recording_name(b, plant_params)
+    logs = out / "logs" / recording.stem
+    started = time.monotonic()
+    with Supervisor(env, logs) as procs:
+        logger = procs.start_node("mcap_logger", "nni_msgs_adapter.mcap_logger", {
+            "output_path": str(recording), "discovery_period_s": 0.1,
+            "run_metadata": json.dumps(run_metadata(args, plant_params, controller_params))})
+        controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params)
+        plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params)
+        wait_for_plant(plant, args, b, limit_s=60.0 + (args.duration if args.mode == "realtime" else args.duration * 2))
+        try:
+            status = plant.wait_exit(procs.grace_s)
+        except ChildError as error:
+            raise CliError(str(error)) from None
         if status != 0:
-            raise CliError(f"the plant exited with status {status}: {procs.output('plant').strip()[-300:]}")
+            raise CliError(f"the plant exited with status {status}: {plant.tail()}")
         time.sleep(DRAIN_S)
-        procs.stop("controller")
-        if procs.stop("mcap_logger") != 0:
-            raise CliError(f"the logger failed: {procs.output('mcap_logger').strip()[-300:]}")
+        controller.stop()
+        if logger.stop() != 0:
+            raise CliError(f"the logger failed: {logger.tail()}")
     wall_s = time.monotonic() - started
-    counts = logger_counts(procs.output("mcap_logger"))
+    counts = logger_counts(logger.output())
+    summary = plant_summary(plant.output())
+    recorded, sent = sum(n for topic, n in counts.items() if topic.endswith("/pmu")), int(summary["measurements"])
+    if recorded < sent:
+        raise CliError(f"the recording {recording} is partial: the logger recorded {recorded} of the {sent} "
+                       f"measurements the plant sent (logs in {logs})")
+    run = read_generator_run(recording)
+    if bridge is not None:
+        wait_for_bridge(bridge, index, run, logs)
     # Assessed with the very model and scenario the nodes ran with.
-    traj, diag = trajectory_from_recording(recording, args.model.smib(), args.model.controller_params(b))
+    traj = trajectory_from_recording(run, args.model.smib(), args.model.controller_params(b))
     outcome = assess(traj, scenario=args.model.scenario()).to_json()
+    diag = run.diagnostics
     outcome.update({
-        "mode": args.mode, "rate_hz": args.rate, "recording": str(recording), "wall_time_s": wall_s,
+        "mode": args.mode, "rate_hz": args.rate, "recording": str(recording),
+        "wall_time_s": round(wall_s, 3),
         "samples": int(diag.get("samples", 0)),
-        "latency_ms": {q: float(diag[f"latency_{q}_ms"]) for q in ("p50", "p99", "max") if f"latency_{q}_ms" in diag},
+        # The plant measures latency to the nanosecond: more digits are float noise (0.33549999999999996).
+        "latency_ms": {q: round(float(diag[f"latency_{q}_ms"]), 6) for q in ("p50", "p99", "max")
+                       if f"latency_{q}_ms" in diag},
         "dropped_samples": int(diag.get("deadline_misses", 0)),
         "late_samples": int(diag.get("late", 0)),
         "logger_counts": counts,
     })
+    reasons = compromised_reasons(summary, run, b)
+    if reasons:
+        outcome["compromised"] = reasons
     return outcome, traj
 
 
-def run_all(args, env: dict) -> tuple[list[dict], list[Trajectory]]:
+def run_all(args, env: dict, bridge=None) -> tuple[list[dict], list[Trajectory]]:
     """One run per battery limit, each reported on one line as it finishes."""
     runs, trajectories = [], []
-    for b in args.b:
-        run, traj = run_one(args, b, env, args.out)
+    for index, b in enumerate(args.b, start=1):
+        run, traj = run_one(args, b, env, args.out, bridge, index)
         runs.append(run)
         trajectories.append(traj)
+        if "compromised" in run:
+            print(f"  b = {b:<5g} {compromised_text(b, run['compromised'])}")
+            continue
         lat = run["latency_ms"]
         print(f"  b = {b:<5g} {verdict_text(run):<34} "
               f"max|d| {run['max_abs_angle_dev_rad']:8.4f} rad  max|P_ST| {run['max_abs_battery_power_pu']:.4f} pu"
@@ -219,7 +352,6 @@ def run_all(args, env: dict) -> tuple[list[dict], list[Trajectory]]:
 
 def wait_for_interrupt() -> None:
     """Block until Ctrl-C (SIGINT) or SIGTERM."""
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
     try:
         while True:
             time.sleep(3600)
@@ -240,6 +372,8 @@ def main(argv=None) -> int:
     parser = build_parser()
 
     def body():
+        # SIGTERM stops the demo as Ctrl-C does: every child is stopped on the way out.
+        signal.signal(signal.SIGTERM, signal.default_int_handler)
         args = parser.parse_args(argv)
         args.model = resolve_model(args, parser.prog)
         args.model.validate()
@@ -254,13 +388,11 @@ def main(argv=None) -> int:
                    PYTHONUNBUFFERED="1")
         print(f"nni-demo: {args.mode}, {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}")
         print(f"  {args.model.header()}")
-        with Processes(env, args.out) as viewer:
-            if sink:
-                viewer.start("rerun_bridge", "nni_msgs_adapter.rerun_bridge", sink)
-                viewer.wait_for_output("rerun_bridge", READY_TEXT, timeout_s=30.0)
-            runs, trajectories = run_all(args, env)
-            if args.rerun and args.rerun[0] == "serve":
-                print("serving the Rerun stream (URL in rerun_bridge.log); Ctrl-C to stop")
+        with Supervisor(env, args.out) as viewer:
+            bridge = start_viewer(viewer, sink) if sink else None
+            runs, trajectories = run_all(args, env, bridge)
+            if sink and sink["sink"] == "serve":
+                print("serving the Rerun stream; Ctrl-C to stop", flush=True)
                 wait_for_interrupt()
         summary = args.out / "summary.json"
         with atomic_output(summary) as handle:
@@ -269,7 +401,14 @@ def main(argv=None) -> int:
         figure = args.out / "figures.png"
         plot_runs(trajectories, runs, figure, args.model.scenario_values(), f"sampled at {args.rate:g} Hz",
                   args.mode)
-        print(f"wrote {summary}, {figure} and {len(runs)} recording(s) in {args.out}")
+        written = [str(summary), str(figure)] + ([sink["path"]] if sink and sink["sink"] == "save" else [])
+        print(f"wrote {', '.join(written)} and {len(runs)} recording(s) in {args.out}")
+        compromised = [run for run in runs if "compromised" in run]
+        if compromised:
+            limits = ", ".join(str(run["b"]) for run in compromised)
+            print(f"{parser.prog}: error: {len(compromised)} of {len(runs)} run(s) compromised (b = {limits}): "
+                  "the battery was not under its controller's command alone; see summary.json", file=sys.stderr)
+            return EXIT_COMPROMISED
         return 0
 
     return run_cli(body, parser.prog)

@@ -352,6 +352,23 @@ def _dataclass_from(cls, values, section: str, path) -> object:
         raise CliError(f"{path}: recorded {section} parameters are invalid: {error}") from None
 
 
+def recorded_scenario(parameters: dict, path):
+    """The run's scenario object, from the recorded plant parameters (CliError if they do not name one)."""
+    from nni_plant_sim.scenarios import from_values
+
+    try:
+        return from_values(parameters["plant"])
+    except (KeyError, TypeError, ValueError) as error:
+        raise CliError(f"{path}: the recorded plant parameters name no valid scenario ({error})") from None
+
+
+def recorded_setting(parameters: dict, key: str, path):
+    """One top-level run parameter (mode, rate_hz, scenario), or CliError naming it."""
+    if key not in parameters:
+        raise CliError(f"{path}: run parameters lack {key!r}")
+    return parameters[key]
+
+
 def trajectories(recording: Recording, runs: dict[str, GeneratorRun], parameters: dict) -> dict:
     """Per namespace, the run as a sampled :class:`simulate.Trajectory` with the recorded parameters.
 
@@ -410,9 +427,10 @@ def info_lines(recording: Recording, runs: dict[str, GeneratorRun], parameters: 
         return lines
     lines.append("Run parameters:")
     lines += [f"  {key}: {json_text(value)}" for key, value in parameters.items()]
+    scenario = recorded_scenario(parameters, recording.path)
     for namespace, traj in trajectories(recording, runs, parameters).items():
         lines.append(f"Verdicts{' of ' + namespace if namespace else ''}:")
-        lines += [f"  {key}: {json_text(value)}" for key, value in assess(traj).to_json().items()]
+        lines += [f"  {key}: {json_text(value)}" for key, value in assess(traj, scenario=scenario).to_json().items()]
     return lines
 
 
@@ -434,11 +452,17 @@ def describe(args) -> int:
 def plot(args) -> int:
     """``--plot OUT.png``: the run's figure, as ``nni-simulate --plot`` draws it, from the recorded samples."""
     from nni_battery_controller.cli import plot_runs
+    from nni_battery_controller.simulate import assess
 
     recording = load(args)
     runs = readable_runs(recording)
-    trajs = trajectories(recording, runs, require_parameters(recording, "--plot"))
-    plot_runs(list(trajs.values()), args.plot)
+    parameters = require_parameters(recording, "--plot")
+    trajs = list(trajectories(recording, runs, parameters).values())
+    scenario = recorded_scenario(parameters, recording.path)
+    outcomes = [assess(traj, scenario=scenario).to_json() for traj in trajs]
+    rate_hz = recorded_setting(parameters, "rate_hz", recording.path)
+    plot_runs(trajs, outcomes, args.plot, recorded_setting(parameters, "scenario", recording.path),
+              f"sampled at {rate_hz:g} Hz", recorded_setting(parameters, "mode", recording.path))
     print(f"{PROG}: wrote {args.plot} ({len(trajs)} generator run(s))")
     return 0
 

@@ -24,6 +24,12 @@ entity path                         content
 (2D views draw y down; the flip makes ``d'`` point up) and the ``d``/``d'``
 axes with ticks, sized by the last Omega boundary logged.
 
+All runs logged through :func:`open_recording` (the live bridge, ``nni-replay``)
+share one application id and one recording id (``APP_ID``, ``RECORDING_ID``),
+so that the viewer pools them into one recording: files of different runs
+opened together (or merged with ``rerun rrd merge``) overlay in the same views.
+Each run's colour depends on its battery limit only (:func:`run_color`).
+
 All time series live on one duration timeline (default ``"sim_time"``, seconds).
 The phase-portrait trajectory is logged as consecutive strip segments, each
 stamped with the time of its last sample; the phase-portrait view shows every
@@ -38,6 +44,7 @@ import os
 import shutil
 import sys
 import urllib.parse
+import zlib
 from pathlib import Path
 from typing import NamedTuple
 
@@ -51,7 +58,12 @@ PHASE_SEGMENT_SAMPLES = 50
 #: Root of the phase portrait: y-flip, axes and ticks; runs are its children.
 PHASE_PATH = "/phase_portrait"
 
-#: Run colours (RGB), assigned in order of first use within a recording.
+#: Rerun application id of every stream this project writes.
+APP_ID = "nni_battery_control"
+#: Recording id of every stream this project writes: the viewer pools equal ids into one recording.
+RECORDING_ID = "nni_battery_control_runs"
+
+#: Run colours (RGB); see :func:`run_color`.
 PALETTE = (
     (31, 119, 180),
     (255, 127, 14),
@@ -72,7 +84,31 @@ _AXES_COLOR = (120, 120, 120)
 _Y_UP = rr.Transform3D(scale=[1.0, -1.0, 1.0])
 _LINE_WIDTH_PX = 1.5
 _STRIP_RADIUS_PX = 1.0
-_assigned_colors: dict[str, dict[str, tuple[int, int, int]]] = {}
+#: The paper's battery limits, in the order of its figures, take the first palette colours.
+_PAPER_LIMITS = (0.0, 0.2, 0.3, math.inf)
+
+
+def run_color(b: float) -> tuple[int, int, int]:
+    """
+    Return the colour of a run with battery limit ``b``: the same in every view and file.
+
+    The paper's limits 0, 0.2, 0.3 and inf take the first four :data:`PALETTE`
+    colours; any other ``b`` one of the remaining six, chosen by its value.
+
+    Parameters
+    ----------
+    b : float
+        Battery limit (pu), ``inf`` allowed.
+
+    Returns
+    -------
+    (int, int, int)
+        RGB colour.
+    """
+    if b in _PAPER_LIMITS:
+        return PALETTE[_PAPER_LIMITS.index(b)]
+    rest = PALETTE[len(_PAPER_LIMITS):]
+    return rest[zlib.crc32(f"{b:.12g}".encode()) % len(rest)]
 
 
 class RunPaths(NamedTuple):
@@ -140,9 +176,15 @@ def blueprint(
         The blueprint; send it with :meth:`rerun.RecordingStream.send_blueprint`.
     """
     legend = rrb.PlotLegend(corner=rrb.Corner2D.RightTop)
+    # Simulated seconds from the runs' start (t = 0) on, the same range in every view: the views scroll
+    # and zoom together, and runs of different lengths overlay from 0.
+    axis_x = rrb.TimeAxis(link="LinkToGlobal", view_range=rr.encodings.TimeRange(
+        start=rrb.TimeRangeBoundary.absolute(seconds=0.0), end=rrb.TimeRangeBoundary.infinite()))
 
     def series_view(origin: str, name: str, axis_y: rrb.ScalarAxis | None = None) -> rrb.TimeSeriesView:
-        return rrb.TimeSeriesView(origin=origin, name=name, plot_legend=legend, axis_y=axis_y)
+        return rrb.TimeSeriesView(origin=origin, name=name, plot_legend=legend, axis_x=axis_x, axis_y=axis_y,
+                                  time_ranges=rrb.VisibleTimeRange(timeline, start=rrb.TimeRangeBoundary.infinite(),
+                                                                   end=rrb.TimeRangeBoundary.infinite()))
 
     bounds = None
     if phase_bounds is not None:
@@ -165,10 +207,10 @@ def blueprint(
             rrb.Vertical(
                 series_view("/angle_deviation", "Angle deviation (rad)"),
                 series_view("/frequency_deviation", "Frequency deviation (Hz)"),
-                series_view("/w_hat", "W_hat (closed-loop Lyapunov candidate)"),
+                series_view("/w_hat", "W_hat, closed-loop Lyapunov candidate (pu rad)"),
             ),
             rrb.Vertical(
-                series_view("/battery", "Battery power (pu)"),
+                series_view("/battery", "Battery power P_ST and limits +-b (pu)"),
                 series_view("/saturation", "Saturation (flag 0/1)", rrb.ScalarAxis(range=(-0.1, 1.1))),
                 row_shares=[2, 1],
             ),
@@ -192,6 +234,11 @@ def _put_venv_rerun_on_path() -> None:
         os.environ["PATH"] = os.pathsep.join((str(Path(sys.executable).parent), os.environ.get("PATH", "")))
 
 
+def recording_stream(app_id: str = APP_ID) -> rr.RecordingStream:
+    """A recording stream with the project's shared recording id (runs in different files overlay)."""
+    return rr.RecordingStream(app_id, recording_id=RECORDING_ID)
+
+
 def open_recording(
     app_id: str,
     sink: tuple[str, str | int | None],
@@ -209,7 +256,8 @@ def open_recording(
         ``("save", path)`` writes an ``.rrd`` file; ``("serve", port)`` hosts a
         gRPC server (``port``, or 9876 if ``None``) and the web viewer on
         port 9090, both on all network interfaces, for as long as the process
-        runs; ``("spawn", None)`` starts a native viewer.
+        runs; ``("connect", url)`` streams to a running viewer or server;
+        ``("spawn", None)`` starts a native viewer.
     layout : rerun.blueprint.Blueprint or None
         Blueprint to send; defaults to :func:`blueprint`.
 
@@ -227,7 +275,7 @@ def open_recording(
         If the sink kind is unknown.
     """
     kind, target = sink
-    recording = rr.RecordingStream(app_id)
+    recording = recording_stream(app_id)
     url = None
     if kind == "save":
         recording.save(target)
@@ -235,11 +283,13 @@ def open_recording(
         grpc_url = recording.serve_grpc(grpc_port=target)
         rr.serve_web_viewer(open_browser=False)
         url = f"http://localhost:9090/?url={urllib.parse.quote(grpc_url, safe='')}"
+    elif kind == "connect":
+        recording.connect_grpc(target)
     elif kind == "spawn":
         _put_venv_rerun_on_path()
         recording.spawn()
     else:
-        raise ValueError(f"unknown Rerun sink {kind!r}: expected 'save', 'serve' or 'spawn'")
+        raise ValueError(f"unknown Rerun sink {kind!r}: expected 'save', 'serve', 'connect' or 'spawn'")
     recording.send_blueprint(blueprint() if layout is None else layout)
     return recording, url
 
@@ -293,7 +343,7 @@ def log_trajectory(
     timeline : str
         Duration timeline name.
     color : (int, int, int) or None
-        RGB colour of the run; ``None`` picks the next :data:`PALETTE` entry.
+        RGB colour of the run; ``None``: :func:`run_color` of ``b``.
     segment_samples : int
         Samples per phase-portrait strip segment.
 
@@ -370,7 +420,7 @@ class LiveLogger:
     timeline : str
         Duration timeline name.
     color : (int, int, int) or None
-        RGB colour of the run; ``None`` picks the next :data:`PALETTE` entry.
+        RGB colour of the run; ``None``: :func:`run_color` of ``b``.
     segment_samples : int
         Samples per phase-portrait strip segment.
 
@@ -498,16 +548,23 @@ def _log_run_statics(
         if not np.array_equal(boundary[0], boundary[-1]):
             boundary = np.vstack([boundary, boundary[:1]])
     if color is None:
-        color = _run_color(recording, label)
+        color = run_color(b)
     radius = rr.components.Radius.ui_points(_STRIP_RADIUS_PX)
+
+    def line(name: str, *, step: bool = False, rgb=color, width: float = _LINE_WIDTH_PX) -> rr.SeriesLines:
+        # Step-like signals (held between samples) are drawn as steps and never averaged
+        # over a pixel: a 0/1 flag must not show 0.5, a held power its true values.
+        if step:
+            return rr.SeriesLines(colors=rgb, widths=width, names=f"{name} {label}", interpolation_mode="StepAfter",
+                                  aggregation_policy="Off")
+        return rr.SeriesLines(colors=rgb, widths=width, names=f"{name} {label}")
+
     styles = {
-        paths.angle: rr.SeriesLines(colors=color, widths=_LINE_WIDTH_PX, names=f"d {label}"),
-        paths.frequency: rr.SeriesLines(colors=color, widths=_LINE_WIDTH_PX, names=f"Δf {label}"),
-        paths.power: rr.SeriesLines(colors=color, widths=_LINE_WIDTH_PX, names=f"P_ST {label}"),
-        paths.saturation: rr.SeriesLines(
-            colors=color, widths=_LINE_WIDTH_PX, names=f"saturated {label}", interpolation_mode="StepAfter"
-        ),
-        paths.w_hat: rr.SeriesLines(colors=color, widths=_LINE_WIDTH_PX, names=f"W_hat {label}"),
+        paths.angle: line("d (rad)"),
+        paths.frequency: line("Δf (Hz)"),
+        paths.power: line("P_ST (pu)", step=True),
+        paths.saturation: line("saturated (0/1)", step=True),
+        paths.w_hat: line("W_hat (pu rad)"),
         paths.parameters: rr.AnyValues(b=b, f0_hz=f0_hz),
         # Static colour and width apply to every (time-stamped) trajectory segment.
         paths.trajectory: rr.LineStrips2D.from_fields(colors=color, radii=radius),
@@ -515,10 +572,11 @@ def _log_run_statics(
     }
     if math.isfinite(b):
         limit_color = (*color, _LIMIT_ALPHA)
-        styles[paths.limit_upper] = rr.SeriesLines(colors=limit_color, widths=1.0, names=f"+b {label}")
-        styles[paths.limit_lower] = rr.SeriesLines(colors=limit_color, widths=1.0, names=f"-b {label}")
+        styles[paths.limit_upper] = line("+b (pu)", step=True, rgb=limit_color, width=1.0)
+        styles[paths.limit_lower] = line("-b (pu)", step=True, rgb=limit_color, width=1.0)
     if boundary is not None:
-        styles[paths.omega_boundary] = rr.LineStrips2D([boundary], colors=_OMEGA_COLOR, radii=radius)
+        styles[paths.omega_boundary] = rr.LineStrips2D([boundary], colors=_OMEGA_COLOR, radii=radius,
+                                                       labels=f"Omega {label}", show_labels=True)
     for path, archetype in styles.items():
         recording.log(path, archetype, static=True)
     if boundary is not None:
@@ -562,9 +620,3 @@ def _log_phase_axes(recording: rr.RecordingStream, boundary: np.ndarray) -> None
         ),
         static=True,
     )
-
-
-def _run_color(recording: rr.RecordingStream, label: str) -> tuple[int, int, int]:
-    """Return the palette colour of ``label``, assigned in order of first use per recording."""
-    colors = _assigned_colors.setdefault(recording.get_recording_id(), {})
-    return colors.setdefault(label, PALETTE[len(colors) % len(PALETTE)])
