@@ -20,6 +20,7 @@ from nni_battery_controller.demo import (
     build_parser,
     compromised_reasons,
     controller_parameters,
+    parse_arguments,
     plant_parameters,
     recording_name,
     run_metadata,
@@ -172,7 +173,7 @@ def test_live_rerun_realtime_starts_at_zero_under_load(tmp_path):
 
 def test_demo_waits_for_the_bridge_before_the_plant_starts():
     """With a bridge the plant waits for three pmu subscribers: controller, logger and the bridge."""
-    args = build_parser().parse_args([])
+    args = parse_arguments(build_parser(), [])
     assert plant_parameters(args, with_bridge=True)["wait_for_subscribers"] == 3
     assert plant_parameters(args, with_bridge=False)["wait_for_subscribers"] == 2
 
@@ -264,7 +265,7 @@ def test_compromised_reasons():
 
 
 def test_recording_names_follow_the_scenario():
-    args = build_parser().parse_args([])
+    args = parse_arguments(build_parser(), [])
     paper = plant_parameters(args, with_bridge=False)
     assert recording_name(0.3, paper) == "paper_b0.3.mcap"
     assert recording_name(math.inf, {**paper, "mode": "realtime", "duration_s": 3.0}) == "paper_binf.mcap"
@@ -274,7 +275,7 @@ def test_recording_names_follow_the_scenario():
 
 
 def test_run_metadata_holds_every_node_parameter():
-    args = build_parser().parse_args(["--b", "0.3"])
+    args = parse_arguments(build_parser(), ["--b", "0.3"])
     plant = plant_parameters(args, with_bridge=False)
     meta = run_metadata(args, plant, controller_parameters(args, 0.3))
     assert set(meta) == {"scenario", "plant", "controller", "mode", "rate_hz", "software_version"}

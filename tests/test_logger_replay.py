@@ -390,9 +390,9 @@ def described_run(tmp_path_factory) -> tuple[Path, dict]:
                 "software_version": "test"}
     text = json.dumps(metadata)
     with node_processes(tmp, fresh_domain_id()) as start:
-        # A YAML single-quoted string, so that ROS takes the JSON object as the string parameter.
+        # node_command passes strings YAML-quoted, so ROS takes the JSON object as the string parameter.
         logger = start("logger", LOGGER, {"output_path": str(path), "discovery_period_s": 0.1,
-                                          "run_metadata": "'" + text.replace("'", "''") + "'"})
+                                          "run_metadata": text})
         start("controller", CONTROLLER, {"battery_limit_pu": 0.3})
         plant = start("plant", PLANT, {"mode": "lockstep", "duration_s": 10.0, "wait_for_subscribers": 2})
         assert plant.wait(timeout=120) == 0, plant.output()

@@ -17,14 +17,13 @@ import pyarrow as pa
 import pytest
 from rerun.chunk import RrdReader
 
+from nni_msgs_adapter.palette import colour_hex, colour_rgb
 from nni_msgs_adapter.rerun_view import (
-    PALETTE,
     PHASE_PATH,
     LiveLogger,
     blueprint,
     log_trajectory,
     open_recording,
-    run_color,
     run_paths,
 )
 
@@ -216,13 +215,14 @@ def test_phase_axes_and_colours(batch_file: tuple) -> None:
     labels = static_value(entities[PHASE_PATH], "Points2D:labels")
     assert {"d (rad)", "d' (rad/s)", "1", "-3", "3"} <= set(labels)
     colors = [static_value(entities[run_paths(label).angle], "SeriesLines:colors") for label in RUNS]
-    assert len({c[0] for c in colors}) == len(RUNS)  # one palette colour per run
+    # Rerun packs a colour as 0xRRGGBBAA: each run has its b's colour, the figures' own (palette).
+    assert [c[0] >> 8 for c in colors] == [int(colour_hex(b)[1:], 16) for b in RUNS.values()]
 
 
 def test_no_battery_draws_zero_limits(tmp_path: Path) -> None:
     recording, _ = open_recording("nni_test_b0", ("save", tmp_path / "b0.rrd"))
     run = damped_run(0.0, n=100)
-    paths = log_trajectory(recording, "b=0", **run, b=0.0, f0_hz=50.0, color=PALETTE[3])
+    paths = log_trajectory(recording, "b=0", **run, b=0.0, f0_hz=50.0, color=colour_rgb(math.inf))
     recording.disconnect()
     entities = read_entities(tmp_path / "b0.rrd")
     for path in (paths.limit_upper, paths.limit_lower):
@@ -278,13 +278,6 @@ def test_step_signals_are_never_averaged_and_every_series_says_its_unit(batch_fi
                      paths.power: "P_ST (pu) b=0.3", paths.saturation: "saturated (0/1) b=0.3",
                      paths.w_hat: "W_hat (pu rad) b=0.3"}
     assert static_value(entities[paths.omega_boundary], "LineStrips2D:labels") == ["Omega b=0.3"]
-
-
-def test_run_colour_depends_on_b_only() -> None:
-    assert [run_color(b) for b in (0.0, 0.2, 0.3, math.inf)] == list(PALETTE[:4])
-    others = [run_color(b) for b in (0.1, 0.25, 0.5, 1.0, 2.0)]
-    assert all(colour in PALETTE[4:] for colour in others)
-    assert run_color(0.25) == run_color(0.25)
 
 
 def test_runs_in_separate_files_overlay_when_merged(tmp_path: Path) -> None:

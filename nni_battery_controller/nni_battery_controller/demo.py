@@ -367,6 +367,14 @@ def logger_counts(output: str) -> dict:
     raise CliError("the logger did not report its message counts")
 
 
+def parse_arguments(parser: OneLineParser, argv=None) -> argparse.Namespace:
+    """The command line, with the model, scenario and gains resolved (``args.model``) and validated."""
+    args = parser.parse_args(argv)
+    args.model = resolve_model(args, parser.prog)
+    args.model.validate()
+    return args
+
+
 def main(argv=None) -> int:
     """Entry point of ``nni-demo``."""
     parser = build_parser()
@@ -374,9 +382,7 @@ def main(argv=None) -> int:
     def body():
         # SIGTERM stops the demo as Ctrl-C does: every child is stopped on the way out.
         signal.signal(signal.SIGTERM, signal.default_int_handler)
-        args = parser.parse_args(argv)
-        args.model = resolve_model(args, parser.prog)
-        args.model.validate()
+        args = parse_arguments(parser, argv)
         sink = rerun_sink(args.rerun) if args.rerun else None
         domain = args.domain_id if args.domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
         if not 0 <= domain <= 232:

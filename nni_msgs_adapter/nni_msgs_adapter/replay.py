@@ -352,18 +352,20 @@ def _dataclass_from(cls, values, section: str, path) -> object:
         raise CliError(f"{path}: recorded {section} parameters are invalid: {error}") from None
 
 
-def recorded_scenario(parameters: dict, path):
-    """The run's scenario object, from the recorded plant parameters (CliError if they do not name one)."""
-    from nni_plant_sim.scenarios import from_values
+def recorded_scenario(parameters: dict, path) -> tuple:
+    """The run's scenario as an object and as ``{"name": ..., <its values>}``, from the recorded plant parameters."""
+    from nni_plant_sim.scenarios import SCENARIO_FIELDS, from_values
 
+    plant = parameters.get("plant")
     try:
-        return from_values(parameters["plant"])
+        scenario = from_values(plant)
+        return scenario, {"name": plant["scenario"], **{k: plant[k] for k in SCENARIO_FIELDS[plant["scenario"]]}}
     except (KeyError, TypeError, ValueError) as error:
         raise CliError(f"{path}: the recorded plant parameters name no valid scenario ({error})") from None
 
 
 def recorded_setting(parameters: dict, key: str, path):
-    """One top-level run parameter (mode, rate_hz, scenario), or CliError naming it."""
+    """One top-level run parameter (mode, rate_hz), or CliError naming it."""
     if key not in parameters:
         raise CliError(f"{path}: run parameters lack {key!r}")
     return parameters[key]
@@ -427,7 +429,7 @@ def info_lines(recording: Recording, runs: dict[str, GeneratorRun], parameters: 
         return lines
     lines.append("Run parameters:")
     lines += [f"  {key}: {json_text(value)}" for key, value in parameters.items()]
-    scenario = recorded_scenario(parameters, recording.path)
+    scenario, _ = recorded_scenario(parameters, recording.path)
     for namespace, traj in trajectories(recording, runs, parameters).items():
         lines.append(f"Verdicts{' of ' + namespace if namespace else ''}:")
         lines += [f"  {key}: {json_text(value)}" for key, value in assess(traj, scenario=scenario).to_json().items()]
@@ -458,11 +460,11 @@ def plot(args) -> int:
     runs = readable_runs(recording)
     parameters = require_parameters(recording, "--plot")
     trajs = list(trajectories(recording, runs, parameters).values())
-    scenario = recorded_scenario(parameters, recording.path)
+    scenario, scenario_values = recorded_scenario(parameters, recording.path)
     outcomes = [assess(traj, scenario=scenario).to_json() for traj in trajs]
     rate_hz = recorded_setting(parameters, "rate_hz", recording.path)
-    plot_runs(trajs, outcomes, args.plot, recorded_setting(parameters, "scenario", recording.path),
-              f"sampled at {rate_hz:g} Hz", recorded_setting(parameters, "mode", recording.path))
+    plot_runs(trajs, outcomes, args.plot, scenario_values, f"sampled at {rate_hz:g} Hz",
+              recorded_setting(parameters, "mode", recording.path))
     print(f"{PROG}: wrote {args.plot} ({len(trajs)} generator run(s))")
     return 0
 

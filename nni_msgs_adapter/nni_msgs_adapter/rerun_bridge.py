@@ -40,7 +40,8 @@ from rclpy.node import Node
 from nni_msgs_adapter import contract
 from nni_msgs_adapter.node_main import run_node
 from nni_msgs_adapter.ros_params import Spec, check_choices, current_values, declare
-from nni_msgs_adapter.rerun_view import APP_ID, LiveLogger, open_recording, run_color
+from nni_msgs_adapter.palette import colour_rgb
+from nni_msgs_adapter.rerun_view import APP_ID, LiveLogger, open_recording
 
 PARAMETERS = (
     Spec("sink", "save", "Where the stream goes.", choices=("save", "serve", "spawn", "connect"), read_only=True),
@@ -192,7 +193,7 @@ class RerunBridge(Node):
             self._labels[label] = self._labels.get(label, 0) + 1
             run.label = label if self._labels[label] == 1 else f"{label} #{self._labels[label]}"
             run.logger = LiveLogger(self._recording, run.label, b, self._f0_hz, omega_boundary=self._boundary,
-                                    color=run_color(b))
+                                    color=colour_rgb(b))
         t_s = (stamp_ns - run.t0_ns) / 1e9  # correctly rounded: 0.98, not 0.9800000000000001
         run.logger.log(t_s, signals["angle_dev"], speed, signals["battery_power"], signals["saturated"] > 0.5,
                        signals["w_hat"])

@@ -28,7 +28,7 @@ All runs logged through :func:`open_recording` (the live bridge, ``nni-replay``)
 share one application id and one recording id (``APP_ID``, ``RECORDING_ID``),
 so that the viewer pools them into one recording: files of different runs
 opened together (or merged with ``rerun rrd merge``) overlay in the same views.
-Each run's colour depends on its battery limit only (:func:`run_color`).
+Each run's colour depends on its battery limit only (:func:`nni_msgs_adapter.palette.colour_rgb`).
 
 All time series live on one duration timeline (default ``"sim_time"``, seconds).
 The phase-portrait trajectory is logged as consecutive strip segments, each
@@ -44,13 +44,14 @@ import os
 import shutil
 import sys
 import urllib.parse
-import zlib
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
+
+from nni_msgs_adapter.palette import colour_rgb
 
 #: Default number of samples per phase-portrait strip segment (-).
 PHASE_SEGMENT_SAMPLES = 50
@@ -63,20 +64,6 @@ APP_ID = "nni_battery_control"
 #: Recording id of every stream this project writes: the viewer pools equal ids into one recording.
 RECORDING_ID = "nni_battery_control_runs"
 
-#: Run colours (RGB); see :func:`run_color`.
-PALETTE = (
-    (31, 119, 180),
-    (255, 127, 14),
-    (44, 160, 44),
-    (214, 39, 40),
-    (148, 103, 189),
-    (140, 86, 75),
-    (227, 119, 194),
-    (188, 189, 34),
-    (23, 190, 207),
-    (127, 127, 127),
-)
-
 _LIMIT_ALPHA = 150
 _OMEGA_COLOR = (200, 200, 200)
 _AXES_COLOR = (120, 120, 120)
@@ -84,31 +71,6 @@ _AXES_COLOR = (120, 120, 120)
 _Y_UP = rr.Transform3D(scale=[1.0, -1.0, 1.0])
 _LINE_WIDTH_PX = 1.5
 _STRIP_RADIUS_PX = 1.0
-#: The paper's battery limits, in the order of its figures, take the first palette colours.
-_PAPER_LIMITS = (0.0, 0.2, 0.3, math.inf)
-
-
-def run_color(b: float) -> tuple[int, int, int]:
-    """
-    Return the colour of a run with battery limit ``b``: the same in every view and file.
-
-    The paper's limits 0, 0.2, 0.3 and inf take the first four :data:`PALETTE`
-    colours; any other ``b`` one of the remaining six, chosen by its value.
-
-    Parameters
-    ----------
-    b : float
-        Battery limit (pu), ``inf`` allowed.
-
-    Returns
-    -------
-    (int, int, int)
-        RGB colour.
-    """
-    if b in _PAPER_LIMITS:
-        return PALETTE[_PAPER_LIMITS.index(b)]
-    rest = PALETTE[len(_PAPER_LIMITS):]
-    return rest[zlib.crc32(f"{b:.12g}".encode()) % len(rest)]
 
 
 class RunPaths(NamedTuple):
@@ -343,7 +305,7 @@ def log_trajectory(
     timeline : str
         Duration timeline name.
     color : (int, int, int) or None
-        RGB colour of the run; ``None``: :func:`run_color` of ``b``.
+        RGB colour of the run; ``None``: :func:`nni_msgs_adapter.palette.colour_rgb` of ``b``.
     segment_samples : int
         Samples per phase-portrait strip segment.
 
@@ -420,7 +382,7 @@ class LiveLogger:
     timeline : str
         Duration timeline name.
     color : (int, int, int) or None
-        RGB colour of the run; ``None``: :func:`run_color` of ``b``.
+        RGB colour of the run; ``None``: :func:`nni_msgs_adapter.palette.colour_rgb` of ``b``.
     segment_samples : int
         Samples per phase-portrait strip segment.
 
@@ -548,7 +510,7 @@ def _log_run_statics(
         if not np.array_equal(boundary[0], boundary[-1]):
             boundary = np.vstack([boundary, boundary[:1]])
     if color is None:
-        color = run_color(b)
+        color = colour_rgb(b)
     radius = rr.components.Radius.ui_points(_STRIP_RADIUS_PX)
 
     def line(name: str, *, step: bool = False, rgb=color, width: float = _LINE_WIDTH_PX) -> rr.SeriesLines:
