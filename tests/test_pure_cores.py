@@ -25,7 +25,10 @@ PURE_MODULES = [
     "nni_msgs_adapter.mcap_io",
     "nni_msgs_adapter.rerun_view",
     "nni_msgs_adapter.cli_support",
-    "nni_msgs_adapter.loop_stats",
+    "nni_plant_sim.loop_stats",
+    "nni_plant_sim.reporting",
+    "nni_battery_controller.input_gate",
+    "nni_battery_controller.controller_core",
 ]
 
 PROBE = """

@@ -118,8 +118,46 @@ def recorder_endpoint(topic: str) -> tuple:
     return msg_class, name, deep
 
 
+def publishers(node, *topics) -> list:
+    """One publisher of ``node`` per contract topic, with the contract's QoS."""
+    return [node.create_publisher(*endpoint(topic)) for topic in topics]
+
+
+def subscribe(node, topic: str, callback):
+    """A subscription of ``node`` to a contract topic, with the contract's QoS."""
+    msg_class, name, qos = endpoint(topic)
+    return node.create_subscription(msg_class, name, callback, qos)
+
+
 class ContractError(ValueError):
     """A message that does not follow the contract (wrong joints, sizes or values)."""
+
+
+def log_at(logger, level: str, text: str) -> None:
+    """Log ``text`` at ``level`` ("info", "warning" or "error"): rclpy fixes one severity per call site."""
+    if level == "error":
+        logger.error(text)
+    elif level == "warning":
+        logger.warning(text)
+    else:
+        logger.info(text)
+
+
+#: Name of a matched publisher that the ROS graph does not list yet.
+UNSEEN_WRITER = "(not yet in the ROS graph)"
+
+
+def writers_on(node, topic: str, matched: int) -> dict[bytes, str]:
+    """``{GID: node name}`` of the publishers on ``topic`` (resolved name) that ``node`` sees in the ROS graph.
+
+    ``matched``: how many publishers a subscription of ``node`` has matched; an
+    endpoint matched but not yet in the graph cache is someone all the same,
+    listed as :data:`UNSEEN_WRITER` under a placeholder GID of its own.
+    """
+    writers = {bytes(info.endpoint_gid): f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+               for info in node.get_publishers_info_by_topic(topic)}
+    writers.update({b"\0" * n: UNSEEN_WRITER for n in range(matched - len(writers))})
+    return writers
 
 
 def time_from_ns(stamp_ns: int) -> Time:
@@ -130,11 +168,6 @@ def time_from_ns(stamp_ns: int) -> Time:
 def ns_from_time(stamp: Time) -> int:
     """Integer nanoseconds from builtin_interfaces/Time."""
     return stamp.sec * 1_000_000_000 + stamp.nanosec
-
-
-def ns_from_seconds(t_s: float) -> int:
-    """Nanoseconds nearest to ``t_s`` seconds (simulated time stamps)."""
-    return int(round(t_s * 1e9))
 
 
 def pmu_message(stamp_ns: int, delta_rad: float, speed_rad_s: float, p_elec_pu: float) -> JointState:
@@ -150,8 +183,8 @@ def pmu_message(stamp_ns: int, delta_rad: float, speed_rad_s: float, p_elec_pu: 
 
 
 def pmu_from_message(msg: JointState) -> tuple[int, float, float]:
-    """``(stamp_ns, delta rad, speed deviation rad/s)``; ContractError if malformed."""
-    _expect_joint(msg, ROTOR_JOINT, need_velocity=True)
+    """``(stamp_ns, delta rad, speed deviation rad/s)``; ContractError if malformed (values unchecked: the gate's job)."""
+    _expect_joint(msg, ROTOR_JOINT)
     return ns_from_time(msg.header.stamp), msg.position[0], msg.velocity[0]
 
 
@@ -179,7 +212,9 @@ def plant_state_message(stamp_ns: int, delta_rad: float, speed_rad_s: float, bat
 
 def plant_state_from_message(msg: JointState) -> tuple[int, float, float, float]:
     """``(stamp_ns, delta rad, speed rad/s, battery power pu)``."""
-    _expect_joint(msg, ROTOR_JOINT, need_velocity=True)
+    _expect_joint(msg, ROTOR_JOINT)
+    if not all(math.isfinite(v) for v in (*msg.position, *msg.velocity)):
+        raise ContractError(f"non-finite value in {ROTOR_JOINT!r} state")
     if len(msg.effort) != 1:
         raise ContractError("plant state must carry one effort (battery power)")
     return ns_from_time(msg.header.stamp), msg.position[0], msg.velocity[0], msg.effort[0]
@@ -238,8 +273,6 @@ def _format_value(value) -> str:
     return str(value)
 
 
-def _expect_joint(msg: JointState, joint: str, need_velocity: bool) -> None:
-    if list(msg.name) != [joint] or len(msg.position) != 1 or (need_velocity and len(msg.velocity) != 1):
+def _expect_joint(msg: JointState, joint: str) -> None:
+    if list(msg.name) != [joint] or len(msg.position) != 1 or len(msg.velocity) != 1:
         raise ContractError(f"expected one joint {joint!r} with position and velocity, got names {list(msg.name)}")
-    if not all(math.isfinite(v) for v in (*msg.position, *msg.velocity)):
-        raise ContractError(f"non-finite value in {joint!r} measurement")
