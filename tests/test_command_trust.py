@@ -50,6 +50,10 @@ class Rogue:
         self.answered = 0
         if answer is not None:
             self.publisher(contract.TOPIC_BATTERY_COMMAND)
+            # A passive reader of pmu too, so that a plant waiting for it also waits until it is matched.
+            if answer != contract.TOPIC_PMU:
+                self.node.create_subscription(*contract.endpoint(contract.TOPIC_PMU)[:2], lambda msg: None,
+                                              contract.endpoint(contract.TOPIC_PMU)[2])
             msg_class, name, qos = contract.endpoint(answer)
             self.node.create_subscription(msg_class, name, self._answer(answer, powers_pu), qos)
         self.executor = SingleThreadedExecutor(context=self.context)
@@ -155,11 +159,12 @@ def test_attack_2_a_rogue_racing_the_controller_on_each_measurement_is_never_app
         probe = Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_DIAGNOSTICS))
         try:
             start("controller", CONTROLLER, {"battery_limit_pu": B})
-            plant = start("plant", PLANT, {"mode": "realtime", "duration_s": 4.0, "wait_for_subscribers": 1})
+            plant = start("plant", PLANT, {"mode": "realtime", "duration_s": 10.0, "wait_for_subscribers": 1})
             assert wait_until(lambda: len(probe.take(contract.TOPIC_PLANT_STATE)) > 25, 30.0)
             rogue = Rogue(domain, answer=contract.TOPIC_PMU)
             try:
-                assert wait_until(lambda: rogue.answered >= 20, 20.0), "the rogue did answer"
+                assert rogue.matched(contract.TOPIC_BATTERY_COMMAND)
+                assert wait_until(lambda: rogue.answered >= 20, 5.0), "the rogue did answer"
                 assert plant.wait(timeout=30.0) == 0
             finally:
                 rogue.close()
@@ -174,11 +179,11 @@ def test_attack_2_lockstep_a_rogue_answering_clock_before_the_measurement_is_nev
     """Lockstep: the rogue is there from the start and answers each /clock tick, ahead of the controller."""
     domain = fresh_domain_id()
     with node_processes(tmp_path, domain) as start:
-        probe = Probe(domain, (contract.TOPIC_PLANT_STATE,))
+        probe = Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_PMU))
         rogue = Rogue(domain, answer=contract.TOPIC_CLOCK)
         try:
             start("controller", CONTROLLER, {"battery_limit_pu": B})
-            plant = start("plant", PLANT, {"mode": "lockstep", "duration_s": 1.0, "wait_for_subscribers": 1,
+            plant = start("plant", PLANT, {"mode": "lockstep", "duration_s": 1.0, "wait_for_subscribers": 3,
                                            "lockstep_timeout_s": 0.02})
             assert plant.wait(timeout=60.0) == 0
         finally:
@@ -224,10 +229,10 @@ def test_attack_5_an_absurd_command_from_the_paired_writer_is_dropped_and_the_ra
     """The rogue is the only writer (no controller): it is paired, and still cannot break the physics."""
     domain = fresh_domain_id()
     with node_processes(tmp_path, domain) as start:
-        probe = Probe(domain, (contract.TOPIC_PLANT_STATE,))
+        probe = Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_PMU))
         rogue = Rogue(domain, answer=contract.TOPIC_PMU, powers_pu=(1e308, 5.0))
         try:
-            plant = start("plant", PLANT, {"mode": "lockstep", "duration_s": 1.0, "wait_for_subscribers": 1,
+            plant = start("plant", PLANT, {"mode": "lockstep", "duration_s": 1.0, "wait_for_subscribers": 2,
                                            "lockstep_timeout_s": 0.05})
             assert plant.wait(timeout=60.0) == 0
         finally:

@@ -152,9 +152,11 @@ def writers_on(node, topic: str, matched: int) -> dict[bytes, str]:
 
     ``matched``: how many publishers a subscription of ``node`` has matched; an
     endpoint matched but not yet in the graph cache is someone all the same,
-    listed as :data:`UNSEEN_WRITER` under a placeholder GID of its own.
+    listed as :data:`UNSEEN_WRITER` under a placeholder GID of its own (as is
+    one whose node the graph cannot name yet).
     """
-    writers = {bytes(info.endpoint_gid): f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+    writers = {bytes(info.endpoint_gid): UNSEEN_WRITER if info.node_name == "_NODE_NAME_UNKNOWN_"
+               else f"{info.node_namespace.rstrip('/')}/{info.node_name}"
                for info in node.get_publishers_info_by_topic(topic)}
     writers.update({b"\0" * n: UNSEEN_WRITER for n in range(matched - len(writers))})
     return writers

@@ -108,6 +108,7 @@ class CommandChannel:
         for gid, name in others.items():
             if gid not in self.foreign:
                 self.counts["writer_alarms"] += 1
+            if self.foreign.get(gid) != name:  # new, or named now
                 self._event(True, f"foreign writer {name} ({gid.hex()}) on battery/command: commands dropped")
         self.foreign = others
 
