@@ -34,6 +34,11 @@ class Answer:
         """The closed-loop Lyapunov candidate W_hat at this sample (computed after the command is out)."""
         return float(closed_loop_lyapunov(self.angle_dev_rad, self.speed_rad_s, self.x3, self.plant, self.ctrl))
 
+    def signals(self) -> tuple:
+        """``(stamp_ns, angle_dev, x3, w, battery_power, saturated, w_hat, battery_limit)``: controller/state's fields."""
+        return (self.stamp_ns, self.angle_dev_rad, self.x3, self.w, self.power_pu, self.saturated, self.w_hat,
+                self.ctrl.battery_limit_pu)
+
 
 class ControllerCore:
     """Gate and law for a configuration with ``plant``, ``ctrl``, ``period_s`` and ``gate_bounds``."""

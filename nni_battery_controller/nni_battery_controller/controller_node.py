@@ -29,14 +29,13 @@ class ControllerNode(Node):
         # Warm the answer path once, publishing nothing. Profiled: the first pass costs ~5 ms (first JointState,
         # numpy's first calls), which sample 0 would otherwise pay as latency (above 200/s, as a deadline miss).
         warm = ControllerCore(config).measurement(0, config.plant.delta_bar_rad, 0.0, 0, 0)
-        contract.command_message(0, warm.power_pu), self._state(warm)
+        contract.command_message(0, warm.power_pu), contract.controller_state_message(*warm.signals())
         self._command_pub, self._state_pub, self._diag_pub = contract.publishers(
             self, contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE, contract.TOPIC_DIAGNOSTICS)
         contract.subscribe(self, contract.TOPIC_PMU, self._on_measurement)
         self._clock_sub = contract.subscribe(self, contract.TOPIC_CLOCK,
                                              lambda msg: setattr(self, "_clock_ns", contract.ns_from_time(msg.clock)))
-        # Fires only after stale_after_s without a measurement (each one restarts it). Profiled: a timer at the
-        # sample rate doubled the executor's wake-ups and could fire just as a measurement arrived.
+        # Restarted by each measurement: it fires only on silence (profiled: one at the sample rate doubled wake-ups).
         self._stale_timer = self.create_timer(config.stale_after_s, self._check_stale)
         install_validation(self, PARAMETERS, self._validate, self._install)
         self.create_timer(1.0, self._publish_diagnostics)
@@ -63,13 +62,7 @@ class ControllerNode(Node):
         if answer is not None:
             self._command_pub.publish(contract.command_message(stamp_ns, answer.power_pu))
             self._stale_timer.reset()  # bookkeeping after the answer is out: none of it changes the command
-            self._state_pub.publish(self._state(answer))
-
-    @staticmethod
-    def _state(answer):
-        return contract.controller_state_message(answer.stamp_ns, answer.angle_dev_rad, answer.x3, answer.w,
-                                                 answer.power_pu, answer.saturated, answer.w_hat,
-                                                 answer.ctrl.battery_limit_pu)
+            self._state_pub.publish(contract.controller_state_message(*answer.signals()))
 
     def _check_stale(self) -> None:
         stamp_ns = self._core.gate.silence(self.get_clock().now().nanoseconds)
@@ -78,8 +71,8 @@ class ControllerNode(Node):
             self.get_logger().warning(f"no measurement for {self._core.config.stale_after_s:g} s: battery power set to zero")
 
     def _publish_diagnostics(self) -> None:
-        core, level, message = self._core, *((DiagnosticStatus.STALE, "STALE") if self._core.gate.stale
-                                             else (DiagnosticStatus.OK, "OK"))
+        core = self._core
+        level, message = (DiagnosticStatus.STALE, "STALE") if core.gate.stale else (DiagnosticStatus.OK, "OK")
         values = {"x3": core.law.x3, "battery_limit_pu": core.config.ctrl.battery_limit_pu, **core.gate.counts}
         self._diag_pub.publish(contract.diagnostics_message(self.get_clock().now().nanoseconds, "controller",
                                                             self.get_fully_qualified_name(), level, message, values))

@@ -87,14 +87,11 @@ class PlantNode(Node):
                                              self._command_sub.topic_name)
         if text is not None:
             contract.log_at(self.get_logger(), level, text)
-        if state == "give_up":
-            self._gave_up = True
-            self.done.set_result(True)
+        self._gave_up = state == "give_up"
         if state != "start":
-            return
+            return self.done.set_result(True) if self._gave_up else None
         self._start_timer.cancel()
-        # Logged before the first sample: rclpy's first log call is slow (caller
-        # lookup); logged after it, it made sample 0 take 17-19 ms (measured).
+        # Logged before sample 0: rclpy's first log call is slow (caller lookup); after it, sample 0 took 17-19 ms.
         self.get_logger().info(f"started in {self._values['mode']} mode at {self._values['pmu_rate_hz']:g} frames/s")
         values, state = self._values, np.array([self._plant.delta_bar_rad, 0.0])
         self._check_writers()
