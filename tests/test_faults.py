@@ -371,6 +371,20 @@ def test_lockstep_plant_never_hangs_on_a_silent_controller(tmp_path):
     assert len(powers) == 26 and set(powers) == {0.0}
 
 
+def test_a_plant_waiting_for_nobody_says_so_and_gives_up(tmp_path):
+    """Issue 10 section 7: what it waits for (topic, how many, how many it has), then a bounded wait."""
+    with node_processes(tmp_path, fresh_domain_id()) as start:
+        plant = start("plant", PLANT, {"wait_for_subscribers": 2, "wait_timeout_s": 5.5})
+        assert plant.wait(timeout=60) == 1
+        output = plant.output()
+    lines = [line for line in output.splitlines() if "[plant]" in line]
+    waiting = "waiting for 2 subscriber(s) on /pmu (has 0) and a controller publishing on /battery/command (has none)"
+    assert lines[0].startswith("[INFO]") and waiting in lines[0]
+    assert any(line.startswith("[WARN]") and waiting in line for line in lines[1:]), "said again while waiting"
+    assert lines[-1].startswith("[ERROR]") and "gave up after 5." in lines[-1] and waiting in lines[-1]
+    assert "Traceback" not in output
+
+
 def test_logger_survives_publishers_that_come_and_go(tmp_path):
     from nni_msgs_adapter.mcap_io import read_messages
 
