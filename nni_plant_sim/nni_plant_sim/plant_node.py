@@ -126,19 +126,18 @@ class PlantNode(Node):
     # --- publishing ----------------------------------------------------------------------
 
     def _publish(self, output) -> None:
-        """What the core says to publish: the measurement (lockstep: after /clock) first, then true states."""
+        """What the core says to publish: the measurement (lockstep: then /clock) first, then true states."""
         if output is None:
             return
         sample = output.measurement
         if sample is not None:
-            if self._lockstep:
-                self._clock_pub.publish(Clock(clock=contract.time_from_ns(sample.stamp_ns)))
             delta, speed = self._pmu.read(float(sample.state[0]), float(sample.state[1]))
             _, p_max = self._scenario.network(sample.t_s, self._plant)
             self._pmu_pub.publish(contract.pmu_message(sample.stamp_ns, delta, speed,
                                                        float(electrical_power(delta, p_max))))
-            if self._lockstep:
+            if self._lockstep:  # /clock after the measurement: the controller answers before it reads the clock
                 self._loop.sent(self._now_ns())
+                self._clock_pub.publish(Clock(clock=contract.time_from_ns(sample.stamp_ns)))
         for state in output.states:
             self._state_pub.publish(contract.plant_state_message(
                 state.stamp_ns, float(state.state[0]), float(state.state[1]), state.powers[0]))
