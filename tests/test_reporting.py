@@ -48,6 +48,7 @@ def test_only_answers_to_sent_unanswered_measurements_within_their_deadline_are_
     assert channel.admit(1_040 * MS, 0.1, 1_141 * MS) == (Verdict.EXPIRED, None), "101 ms after its instant"
     assert {k: channel.counts[k] for k in ("unsolicited_commands", "expired_commands")} == {
         "unsolicited_commands": 3, "expired_commands": 1}
+    assert channel.stats.duplicates == 2, "of the unsolicited, those to answered or superseded measurements"
 
 
 @pytest.mark.parametrize("power, verdict, applied", [

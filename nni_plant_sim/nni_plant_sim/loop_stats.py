@@ -96,7 +96,6 @@ class LoopStats:
         self.last_answered_stamp_ns: int | None = None
         self.last_answer_wall_ns: int | None = None
         self.late = 0
-        self.rejected = 0
         self.deadline_misses = 0
         self.command_timeouts = 0
         self.duplicates = 0
@@ -160,7 +159,6 @@ class LoopStats:
         """Counters and latency / jitter / turnaround percentiles in ms, for diagnostics."""
         out = {
             "measurements": self.measurements, "commands": self.latency.count, "late": self.late,
-            "rejected": self.rejected,
             "duplicates": self.duplicates, "deadline_misses": self.deadline_misses,
             "command_timeouts": self.command_timeouts, "skipped_reports": self.skipped_reports,
         }

@@ -131,6 +131,7 @@ class CommandChannel:
             self.counts["stand_down_commands"] += 1
             return Verdict.STAND_DOWN, (0.0 if awaited_ns is None else None)
         if self.stats.is_answered(stamp_ns):
+            self.stats.duplicates += 1  # of the unsolicited: answers to a measurement answered or superseded
             return self._drop(Verdict.UNSOLICITED, stamp_ns, power_pu)
         too_late = stamp_ns != awaited_ns if awaited_ns is not None else arrival_ns - stamp_ns > self.deadline_ns
         if too_late:
