@@ -66,7 +66,8 @@ def test_the_battery_never_exceeds_its_rating(power, verdict, applied):
 
 def test_a_second_writer_blocks_every_command_and_raises_one_alarm_per_writer():
     channel = paired_channel()
-    assert channel.take_events() == [(False, f"paired with the controller /controller ({CONTROLLER.hex()}) on battery/command")]
+    paired = f"paired with the controller /controller ({CONTROLLER.hex()}) on battery/command"
+    assert channel.take_events() == [(False, paired)]
     channel.stats.sent(10 * MS, 10 * MS)
     channel.writers({CONTROLLER: "/controller", ROGUE: "/rogue"})
     channel.writers({CONTROLLER: "/controller", ROGUE: "/rogue"})  # seen again: no new alarm

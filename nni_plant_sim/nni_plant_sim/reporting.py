@@ -314,8 +314,9 @@ class RealtimeReporter(_Loop):
         self.advance_to(self._elapsed_s(now_ns))
         return output
 
-    def command(self, index: int, stamp_ns: int, power_pu: float, arrival_ns: int) -> tuple[Verdict | None, Output | None]:
-        """A command for channel ``index``: its verdict (None once the run is over), and the instant it found unreported.
+    def command(self, index: int, stamp_ns: int, power_pu: float,
+                arrival_ns: int) -> tuple[Verdict | None, Output | None]:
+        """A command for channel ``index``: its verdict (None once the run is over), and an instant found unreported.
 
         An instant whose tick is late is reported first, with the powers in force at it.
         """
@@ -372,7 +373,8 @@ class LockstepStepper(_Loop):
                 channel.stats.turnaround.add(wall_ns - self._arrival_ns)
         self._arrival_ns = None
 
-    def command(self, index: int, stamp_ns: int, power_pu: float, arrival_ns: int) -> tuple[Verdict | None, Output | None]:
+    def command(self, index: int, stamp_ns: int, power_pu: float,
+                arrival_ns: int) -> tuple[Verdict | None, Output | None]:
         """A command for channel ``index``; the sample it completes, if it was the last answer awaited."""
         if self.done or self.awaited_ns is None:
             return None, None
@@ -387,7 +389,7 @@ class LockstepStepper(_Loop):
         return verdict, self._complete()
 
     def on_timer(self, wall_ns: int) -> Output | None:
-        """The watchdog: past ``timeout_s`` of wall time without every answer, zero power for the silent ones, and step."""
+        """The watchdog: past ``timeout_s`` of wall time without every answer, zero for the silent ones, and step."""
         if self.done or self.awaited_ns is None:
             return None
         if (wall_ns - self.channels[0].stats.last_sent_wall_ns) * 1e-9 <= self.timeout_s:
@@ -419,7 +421,8 @@ class PmuSensor:
     """What a PMU reads from the true state: Gaussian noise (seeded), then angle quantisation."""
 
     def __init__(self, angle_std_rad: float, speed_std_rad_s: float, quantisation_rad: float, seed: int):
-        self.angle_std_rad, self.speed_std_rad_s, self.quantisation_rad = angle_std_rad, speed_std_rad_s, quantisation_rad
+        self.angle_std_rad, self.speed_std_rad_s = angle_std_rad, speed_std_rad_s
+        self.quantisation_rad = quantisation_rad
         self._rng = np.random.default_rng(seed)
 
     def read(self, delta_rad: float, speed_rad_s: float) -> tuple[float, float]:
@@ -444,7 +447,8 @@ class SubscriberWait:
 
     def __init__(self, wanted_readers: int, settle_s: float, timeout_s: float, since_ns: int,
                  log_period_s: float = 5.0):
-        self.wanted_readers, self.settle_s, self.timeout_s, self.log_period_s = wanted_readers, settle_s, timeout_s, log_period_s
+        self.wanted_readers, self.settle_s = wanted_readers, settle_s
+        self.timeout_s, self.log_period_s = timeout_s, log_period_s
         self._since_ns = since_ns
         self._logged: tuple[str, int] | None = None
         self._all_there_ns: int | None = None
