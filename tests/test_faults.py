@@ -67,7 +67,10 @@ def controller_under_test(tmp_path_factory):
     tmp_path = tmp_path_factory.mktemp("controller")
     domain = fresh_domain_id()
     with node_processes(tmp_path, domain) as start:
-        start("controller", CONTROLLER, {"battery_limit_pu": 0.3, "stale_after_periods": 10000})
+        # A generous stamp tolerance: the duplicate and out-of-order samples below reuse a stamp taken before
+        # a wait for diagnostics (up to 1 s); stamp plausibility has its own tests (test_input_gate.py).
+        start("controller", CONTROLLER, {"battery_limit_pu": 0.3, "stale_after_periods": 10000,
+                                         "stamp_tolerance_s": 60.0})
         probe = Probe(domain, (contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE,
                                contract.TOPIC_DIAGNOSTICS))
         assert probe.wait_matched(contract.TOPIC_PMU, 1, 30.0)
