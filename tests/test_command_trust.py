@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import math
 import signal
-import threading
 import time
 
 import pytest
@@ -22,6 +21,7 @@ from nni_msgs_adapter import contract
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
 from rosproc import Probe, fresh_domain_id, node_processes
+from test_node_parameters import _call, parameter_client
 
 pytestmark = pytest.mark.ros
 
@@ -31,66 +31,33 @@ DELTA_BAR = SmibParams().delta_bar_rad
 B = 0.3
 
 
-class Rogue:
-    """A node called ``rogue`` on ``domain_id`` that publishes on the contract's topics (publishers made on first use).
+class Rogue(Probe):
+    """A node called ``rogue`` on ``domain_id``, publishing on the contract's topics (a publisher made on first use).
 
     ``answer``: a topic (``pmu`` or ``/clock``) whose every message it answers at
     once on battery/command with the message's stamp and the next of ``powers_pu``.
     """
 
     def __init__(self, domain_id: int, answer: str | None = None, powers_pu=(5.0,)):
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node("rogue", context=self.context)
-        self._publishers = {}
+        super().__init__(domain_id, (), node_name="rogue")
         self.answered = 0
         if answer is not None:
-            self.publisher(contract.TOPIC_BATTERY_COMMAND)
-            # A passive reader of pmu too, so that a plant waiting for it also waits until it is matched.
+            self._publisher(contract.TOPIC_BATTERY_COMMAND)
+            contract.subscribe(self.node, answer, self._answer(answer, powers_pu))
             if answer != contract.TOPIC_PMU:
-                self.node.create_subscription(*contract.endpoint(contract.TOPIC_PMU)[:2], lambda msg: None,
-                                              contract.endpoint(contract.TOPIC_PMU)[2])
-            msg_class, name, qos = contract.endpoint(answer)
-            self.node.create_subscription(msg_class, name, self._answer(answer, powers_pu), qos)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
-
-    def publisher(self, topic):
-        if topic not in self._publishers:
-            self._publishers[topic] = self.node.create_publisher(*contract.endpoint(topic))
-        return self._publishers[topic]
+                # A passive reader of pmu too, so that a plant waiting for readers also waits for this one.
+                contract.subscribe(self.node, contract.TOPIC_PMU, lambda msg: None)
 
     def matched(self, topic, timeout: float = 10.0) -> bool:
-        return wait_until(lambda: self.publisher(topic).get_subscription_count() >= 1, timeout)
+        return self.wait_matched(topic, 1, timeout)
 
     def _answer(self, topic, powers_pu):
         def callback(msg):
             stamp = msg.clock if topic == contract.TOPIC_CLOCK else msg.header.stamp
             power = powers_pu[self.answered % len(powers_pu)]
-            self.publisher(contract.TOPIC_BATTERY_COMMAND).publish(
-                contract.command_message(contract.ns_from_time(stamp), power))
+            self.publish(contract.TOPIC_BATTERY_COMMAND, contract.command_message(contract.ns_from_time(stamp), power))
             self.answered += 1
         return callback
-
-    def _spin(self):
-        while self.context.ok():
-            try:
-                self.executor.spin_once(timeout_sec=0.05)
-            except Exception:  # context shut down under us at close()
-                return
-
-    def close(self):
-        import rclpy
-
-        rclpy.try_shutdown(context=self.context)
-        self._thread.join(timeout=2.0)
-        self.node.destroy_node()
 
 
 def summary_of(plant) -> dict:
@@ -134,8 +101,7 @@ def test_attack_1_a_foreign_writer_stamping_the_future_never_reaches_the_battery
             try:
                 assert rogue.matched(contract.TOPIC_BATTERY_COMMAND)
                 for _ in range(50):
-                    rogue.publisher(contract.TOPIC_BATTERY_COMMAND).publish(
-                        contract.command_message(time.time_ns() + 10**10, 5.0))
+                    rogue.publish(contract.TOPIC_BATTERY_COMMAND, contract.command_message(time.time_ns() + 10**10, 5.0))
                     time.sleep(0.02)
                 assert wait_until(lambda: any("/rogue" in text for text in plant_errors(probe)), 2.0), \
                     "diagnostics at ERROR, naming the foreign writer"
@@ -207,7 +173,8 @@ def test_attack_4_one_far_future_measurement_does_not_lock_the_controller_out(tm
             rogue = Rogue(domain)
             try:
                 assert rogue.matched(contract.TOPIC_PMU)
-                rogue.publisher(contract.TOPIC_PMU).publish(contract.pmu_message(time.time_ns() + 3600 * 10**9, DELTA_BAR, 0.0, 0.0))
+                an_hour_ahead = time.time_ns() + 3600 * 10**9
+                rogue.publish(contract.TOPIC_PMU, contract.pmu_message(an_hour_ahead, DELTA_BAR, 0.0, 0.0))
                 hit_at = len(probe.take(contract.TOPIC_PLANT_STATE))
                 assert plant.wait(timeout=30.0) == 0
             finally:
@@ -246,42 +213,9 @@ def test_attack_5_an_absurd_command_from_the_paired_writer_is_dropped_and_the_ra
     assert final["max_abs_applied_power_pu"] == 1.0
 
 
-def parameter_client(domain_id: int, node_name: str):
-    """The rogue's view of a node's parameter service: an AsyncParameterClient with its own executor thread."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.parameter_client import AsyncParameterClient
-
-    context = Context()
-    rclpy.init(context=context, domain_id=domain_id)
-    node = rclpy.create_node("rogue_params", context=context)
-    client = AsyncParameterClient(node, node_name)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
-    stop = threading.Event()
-    thread = threading.Thread(target=lambda: [executor.spin_once(timeout_sec=0.05) for _ in iter(stop.is_set, True)],
-                              daemon=True)
-    thread.start()
-
-    def set_one(name, value):
-        from rclpy.parameter import Parameter
-
-        future = client.set_parameters([Parameter(name, value=value)])
-        assert wait_until(future.done, 10.0), "parameter service did not answer"
-        return future.result().results[0]
-
-    def close():
-        stop.set()
-        thread.join(timeout=2)
-        rclpy.try_shutdown(context=context)
-        node.destroy_node()
-
-    assert client.wait_for_services(timeout_sec=20.0)
-    return set_one, close
-
-
 def test_attack_6_safety_parameters_are_locked_during_a_run_and_gains_stay_tunable(tmp_path):
+    from rclpy.parameter import Parameter
+
     domain = fresh_domain_id()
     with node_processes(tmp_path, domain) as start:
         probe = Probe(domain, (contract.TOPIC_PLANT_STATE,))
@@ -293,9 +227,11 @@ def test_attack_6_safety_parameters_are_locked_during_a_run_and_gains_stay_tunab
             for node, name, value in (("controller", "battery_limit_pu", 100.0), ("controller", "p_mech_pu", 0.0),
                                       ("plant", "battery_rating_pu", 0.0), ("plant", "noise_angle_std_rad", 1.0),
                                       ("controller", "gain_k", 0.9), ("controller", "gain_k", 1.5)):
-                set_one, close = parameter_client(domain, node)
+                client, close = parameter_client(domain, node)
                 try:
-                    results[(node, name, value)] = set_one(name, value)
+                    assert client.wait_for_services(timeout_sec=20.0)
+                    result = _call(client.set_parameters([Parameter(name, value=value)]))
+                    results[(node, name, value)] = result.results[0]
                 finally:
                     close()
         finally:

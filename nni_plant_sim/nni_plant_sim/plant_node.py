@@ -46,11 +46,10 @@ class PlantNode(Node):
         self._wait = SubscriberWait(values["wait_for_subscribers"], values["discovery_settle_s"],
                                     values["wait_timeout_s"], self._now_ns())
         self._writer_count, self._t0_ns, self._finished_ns, self._gave_up = -1, None, None, False
-        self._pmu_pub, self._state_pub, self._diag_pub = (self.create_publisher(*contract.endpoint(topic)) for topic in (
-            contract.TOPIC_PMU, contract.TOPIC_PLANT_STATE, contract.TOPIC_DIAGNOSTICS))
+        self._pmu_pub, self._state_pub, self._diag_pub = contract.publishers(
+            self, contract.TOPIC_PMU, contract.TOPIC_PLANT_STATE, contract.TOPIC_DIAGNOSTICS)
         self._clock_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_CLOCK)) if self._lockstep else None
-        command_type, command_topic, command_qos = contract.endpoint(contract.TOPIC_BATTERY_COMMAND)
-        self._command_sub = self.create_subscription(command_type, command_topic, self._on_command, command_qos)
+        self._command_sub = contract.subscribe(self, contract.TOPIC_BATTERY_COMMAND, self._on_command)
         self.create_service(Trigger, contract.SERVICE_START_FAULT, self._on_start_fault)
         self.create_publisher(*contract.endpoint(contract.TOPIC_INVARIANT_SET)).publish(
             contract.invariant_set_message(self._now_ns(), invariant_set_boundary(self._plant)))
