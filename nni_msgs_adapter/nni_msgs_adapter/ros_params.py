@@ -123,8 +123,8 @@ def install_validation(node, specs, prepare, install) -> None:
     node.add_post_set_parameters_callback(post_set)
 
 
-def locked_changes(old: dict, new: dict, locked) -> None:
+def locked_changes(old: dict, new: dict, locked, when: str = "while a run is active (safety lockdown)") -> None:
     """ValueError naming the parameters among ``locked`` whose values differ between ``old`` and ``new``."""
     changed = sorted(name for name in locked if old.get(name) != new.get(name))
     if changed:
-        raise ValueError(f"{', '.join(changed)} cannot change while a run is active (safety lockdown)")
+        raise ValueError(f"{', '.join(changed)} cannot change {when}")

@@ -65,7 +65,9 @@ class PlantNode(Node):
         return self.get_clock().now().nanoseconds
 
     def _validate(self, values: dict) -> dict:
-        locked_changes(self._values, values, LOCKED_DURING_RUN if self._loop else ("mode",))
+        if self._loop is not None:
+            locked_changes(self._values, values, LOCKED_DURING_RUN)
+        locked_changes(self._values, values, ("mode",), "once the node is up (it chose its publishers)")
         plant_from(values), scenario_from(values)
         return values
 
