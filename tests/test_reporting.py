@@ -233,3 +233,13 @@ def test_the_pmu_quantises_after_its_noise():
     assert PmuSensor(0.0, 0.0, 0.01, 0).read(0.123456, 2.0) == (pytest.approx(0.12), 2.0)
     noisy = [PmuSensor(0.1, 0.0, 0.0, seed).read(0.0, 0.0)[0] for seed in (1, 2)]
     assert noisy[0] != noisy[1] and PmuSensor(0.1, 0.0, 0.0, 1).read(0.0, 0.0)[0] == noisy[0], "seeded"
+
+
+def test_an_unlisted_writer_blocks_but_is_never_paired_and_a_named_one_keeps_its_pairing():
+    channel = CommandChannel(1.0, 100 * MS)
+    channel.writers({}, unlisted=1)  # matched, not yet in the graph: maybe the controller, maybe not
+    assert channel.paired is None and channel.foreign
+    channel.writers({CONTROLLER: "(unnamed)"})
+    assert channel.paired == (CONTROLLER, "(unnamed)") and not channel.foreign
+    channel.writers({CONTROLLER: "/controller"})
+    assert channel.paired == (CONTROLLER, "/controller") and channel.counts["re_pairings"] == 0

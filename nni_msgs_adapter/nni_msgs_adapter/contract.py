@@ -143,23 +143,21 @@ def log_at(logger, level: str, text: str) -> None:
         logger.info(text)
 
 
-#: Name of a matched publisher that the ROS graph does not list yet.
-UNSEEN_WRITER = "(not yet in the ROS graph)"
+#: Name of a publisher the ROS graph lists but cannot name yet.
+UNNAMED_WRITER = "(a node not yet named in the ROS graph)"
 
 
-def writers_on(node, topic: str, matched: int) -> dict[bytes, str]:
-    """``{GID: node name}`` of the publishers on ``topic`` (resolved name) that ``node`` sees in the ROS graph.
+def writers_on(node, topic: str, matched: int) -> tuple[dict[bytes, str], int]:
+    """``({GID: node name}, unlisted)``: the publishers on ``topic`` (resolved name) in ``node``'s ROS graph.
 
-    ``matched``: how many publishers a subscription of ``node`` has matched; an
-    endpoint matched but not yet in the graph cache is someone all the same,
-    listed as :data:`UNSEEN_WRITER` under a placeholder GID of its own (as is
-    one whose node the graph cannot name yet).
+    ``matched``: how many publishers a subscription of ``node`` has matched;
+    ``unlisted``: how many of them the graph does not list yet (someone all the
+    same). A listed one whose node is not named yet is :data:`UNNAMED_WRITER`.
     """
-    writers = {bytes(info.endpoint_gid): UNSEEN_WRITER if info.node_name == "_NODE_NAME_UNKNOWN_"
+    writers = {bytes(info.endpoint_gid): UNNAMED_WRITER if info.node_name == "_NODE_NAME_UNKNOWN_"
                else f"{info.node_namespace.rstrip('/')}/{info.node_name}"
                for info in node.get_publishers_info_by_topic(topic)}
-    writers.update({b"\0" * n: UNSEEN_WRITER for n in range(matched - len(writers))})
-    return writers
+    return writers, max(0, matched - len(writers))
 
 
 def time_from_ns(stamp_ns: int) -> Time:

@@ -161,9 +161,9 @@ class PlantNode(Node):
         count = self._command_sub.get_publisher_count()
         if count == self._writer_count and self._channel.paired is not None:
             return
-        writers = contract.writers_on(self, self._command_sub.topic_name, count)
-        self._writer_count = count if contract.UNSEEN_WRITER not in writers.values() else -1
-        self._channel.writers(writers)
+        writers, unlisted = contract.writers_on(self, self._command_sub.topic_name, count)
+        self._writer_count = -1 if unlisted or contract.UNNAMED_WRITER in writers.values() else count
+        self._channel.writers(writers, unlisted)
         self._report_events()
 
     def _report_events(self) -> None:

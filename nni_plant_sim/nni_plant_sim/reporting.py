@@ -94,17 +94,23 @@ class CommandChannel:
             self.alarm = text
         self._events.append((alarm, text))
 
-    def writers(self, writers: dict[bytes, str]) -> None:
-        """The writers now on the command topic (``{gid: node name}``)."""
+    def writers(self, writers: dict[bytes, str], unlisted: int = 0) -> None:
+        """The writers now on the command topic (``{gid: node name}``), and how many more are matched but unlisted.
+
+        An unlisted writer (matched, not yet in the ROS graph) blocks like any other but is never paired.
+        """
         paired_gid = None if self.paired is None else self.paired[0]
-        if paired_gid not in writers and len(writers) == 1:
+        if paired_gid not in writers and len(writers) == 1 and not unlisted:
             (gid, name), = writers.items()
             if self.paired is not None:
                 self.counts["re_pairings"] += 1
             self._event(False, f"paired with the controller {name} ({gid.hex()}) on battery/command")
             self.paired, self.foreign = (gid, name), {}
             return
+        if paired_gid in writers and writers[paired_gid] != self.paired[1]:  # the graph named it since
+            self.paired = (paired_gid, writers[paired_gid])
         others = {gid: name for gid, name in writers.items() if gid != paired_gid}
+        others.update({f"unlisted {n}".encode(): "(a writer not yet in the ROS graph)" for n in range(unlisted)})
         for gid, name in others.items():
             if gid not in self.foreign:
                 self.counts["writer_alarms"] += 1
