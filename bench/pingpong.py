@@ -66,7 +66,9 @@ class Ping(Node):
         self._tick_timer = None
 
     def _now_ns(self) -> int:
-        return time.monotonic_ns()
+        # Wall time: a ping is stamped with it, and the real controller (one of the echoes) drops
+        # measurements whose stamps are implausible against its own wall clock.
+        return time.time_ns()
 
     def _try_start(self) -> None:
         if self._pub.get_subscription_count() < 1 or self._sub.get_publisher_count() < 1:

@@ -88,7 +88,7 @@ class Probe:
     Runs in its own rclpy Context on ``domain_id``, spun in a background thread.
     """
 
-    def __init__(self, domain_id: int, topics, namespace: str = ""):
+    def __init__(self, domain_id: int, topics, namespace: str = "", node_name: str = "probe"):
         import rclpy
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
@@ -97,7 +97,7 @@ class Probe:
 
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)
-        self.node = rclpy.create_node("probe", namespace=namespace or None, context=self.context)
+        self.node = rclpy.create_node(node_name, namespace=namespace or None, context=self.context)
         self.messages: dict[str, list] = {topic: [] for topic in topics}
         self._handlers: dict[str, list] = {}
         self._publishers: dict[str, object] = {}

@@ -1,11 +1,11 @@
-"""Loop timing bookkeeping at the plant (nni_msgs_adapter.loop_stats): pure, no ROS."""
+"""Loop timing bookkeeping at the plant (nni_plant_sim.loop_stats): pure, no ROS."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from nni_msgs_adapter.loop_stats import RESOLUTION_NS, LoopStats, TimingDistribution
+from nni_plant_sim.loop_stats import RESOLUTION_NS, LoopStats, TimingDistribution
 
 MS = 1_000_000
 

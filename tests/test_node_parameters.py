@@ -95,3 +95,23 @@ def test_runtime_change_is_revalidated_and_rejected_with_reason(tmp_path):
             assert [v.double_value for v in values] == [1.0, 0.1, math.inf], "old values kept after rejections"
         finally:
             close()
+
+
+def test_a_waiting_plant_takes_changes_but_not_of_its_mode(tmp_path):
+    """Before its run the plant's parameters are validated and applied; the mode chose its publishers at start."""
+    from rclpy.parameter import Parameter
+
+    domain = fresh_domain_id()
+    with node_processes(tmp_path, domain) as start:
+        start("plant", PLANT, {"wait_for_subscribers": 1})
+        client, close = parameter_client(domain, "plant")
+        try:
+            assert client.wait_for_services(timeout_sec=20.0)
+            mode = _call(client.set_parameters([Parameter("mode", value="lockstep")])).results[0]
+            assert not mode.successful and "mode cannot change once the node is up" in mode.reason
+            noise = _call(client.set_parameters([Parameter("noise_angle_std_rad", value=0.01)])).results[0]
+            assert noise.successful, noise.reason
+            values = _call(client.get_parameters(["mode", "noise_angle_std_rad"])).values
+            assert (values[0].string_value, values[1].double_value) == ("realtime", 0.01)
+        finally:
+            close()

@@ -29,11 +29,14 @@ PURE_MODULES = [
     "nni_msgs_adapter.mcap_writer",
     "nni_msgs_adapter.rerun_view",
     "nni_msgs_adapter.cli_support",
-    "nni_msgs_adapter.loop_stats",
     "nni_msgs_adapter.defaults",
     "nni_msgs_adapter.palette",
     "nni_battery_controller.options",
     "nni_msgs_adapter.processes",
+    "nni_plant_sim.loop_stats",
+    "nni_plant_sim.reporting",
+    "nni_battery_controller.input_gate",
+    "nni_battery_controller.controller_core",
 ]
 
 PROBE = """

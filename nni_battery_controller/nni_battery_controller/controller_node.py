@@ -1,173 +1,81 @@
 """Controller node: the sampled-data saturated NNI law (H3-hat) on PMU measurements.
 
-Each valid measurement is one sample of :class:`nni_battery_controller.law.SampledController`
-(the law the offline sampled simulation runs); the answer goes out at once on
-``battery/command``, stamped with the measurement it answers, and the internal
-signals on ``controller/state``. The subscription callback is the controller's
-update step: event-driven sampling, O(1) work, nothing else on that path.
-
-Input hygiene (counted, reported in diagnostics): malformed, non-finite or
-implausible measurements, duplicates and out-of-order stamps are dropped. With no
-measurement for ``stale_after_periods`` periods of wall time the controller
-commands zero battery power once and reports STALE. When data returns with a
-gap of more than that many periods in its own stamps (realtime: wall time;
-lockstep: simulated time) the law's state is reset, so the output restarts from
-the steady state instead of jumping; a lockstep plant that merely paused (wall
-time passed, simulated time did not) resumes with its state intact.
+Only translates between ROS and :class:`~nni_battery_controller.controller_core.ControllerCore`
+(the input gate in front of the law the offline sampled simulation runs).
 """
 
 from __future__ import annotations
 
-import math
 import sys
 
+from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 
-from nni_battery_controller.law import ControllerParams, SampledController, closed_loop_lyapunov
+from nni_battery_controller.controller_config import LOCKED_WHEN_ACTIVE, PARAMETERS, ControllerConfig
+from nni_battery_controller.controller_core import ControllerCore
 from nni_msgs_adapter import contract
 from nni_msgs_adapter.node_main import run_node
-from nni_msgs_adapter.ros_params import Spec, load_defaults, current_values, declare, install_validation
-from nni_plant_sim.model import SmibParams
-
-DEFAULTS = load_defaults("nni_battery_controller", "controller.yaml", "controller")
-
-PARAMETERS = (
-    Spec("tau_s", DEFAULTS["tau_s"], "Phase-lead time constant tau, s.", 1e-4, 100.0),
-    Spec("gain_k", DEFAULTS["gain_k"], "Gain K, pu/rad (must be < gain_l).", 1e-6, 100.0),
-    Spec("gain_l", DEFAULTS["gain_l"], "Gain L, pu/rad (must be > gain_k: stability condition K - L < 0).", 1e-6, 100.0),
-    Spec("alpha", DEFAULTS["alpha"], "Saturated-mode decay factor alpha (x3' = -(alpha/K) x3).", 1e-6, 100.0),
-    Spec("battery_limit_pu", DEFAULTS["battery_limit_pu"], "Battery power limit b, pu; .inf for unlimited, 0 for none.",
-         0.0, math.inf),
-    Spec("p_mech_pu", DEFAULTS["p_mech_pu"], "Model of the plant: pre-fault mechanical power P_M, pu.", 0.0, 1e3),
-    Spec("p_max_pu", DEFAULTS["p_max_pu"], "Model of the plant: maximum transfer P_max, pu.", 1e-6, 1e3),
-    Spec("inertia_h_s", DEFAULTS["inertia_h_s"], "Model of the plant: inertia H, s (for W_hat only).", 1e-3, 1e3),
-    Spec("f0_hz", DEFAULTS["f0_hz"], "Model of the plant: nominal frequency, Hz (for W_hat only).", 1.0, 1e3),
-    Spec("sample_rate_hz", DEFAULTS["sample_rate_hz"], "PMU reporting rate the law is discretised for, frames/s.", 10.0, 1000.0),
-    Spec("stale_after_periods", DEFAULTS["stale_after_periods"], "Measurements missing for this many periods: zero power, STALE.", 1, 10000),
-)
-
-
-#: Measurements beyond these are sensor faults, not a generator (a machine that
-#: slips poles for minutes stays far below 1e6 rad); they are dropped and counted.
-MAX_PLAUSIBLE_ANGLE_RAD = 1e6
-MAX_PLAUSIBLE_SPEED_RAD_S = 1e4
-
-
-class ControllerConfig:
-    """Validated configuration built from parameter values (ValueError names the problem)."""
-
-    def __init__(self, values: dict):
-        self.ctrl = ControllerParams(values["tau_s"], values["gain_k"], values["gain_l"], values["alpha"],
-                                     values["battery_limit_pu"])
-        self.plant = SmibParams(values["inertia_h_s"], 0.0, values["p_mech_pu"], values["p_max_pu"],
-                                values["f0_hz"])
-        self.period_s = 1.0 / values["sample_rate_hz"]
-        self.stale_after_s = values["stale_after_periods"] * self.period_s
+from nni_msgs_adapter.ros_params import current_values, declare, install_validation, locked_changes
 
 
 class ControllerNode(Node):
-    """Answers every PMU measurement with a battery power command."""
+    """Answers every PMU measurement that passes the gate with a battery power command."""
 
     def __init__(self, **kwargs):
         super().__init__("controller", **kwargs)
         declare(self, PARAMETERS)
-        self._config = ControllerConfig(current_values(self, PARAMETERS))
-        self._law = SampledController(self._config.plant, self._config.ctrl, self._config.period_s)
-        install_validation(self, PARAMETERS, self._apply_config)
-        self._warm_up()
-
-        self._last_stamp_ns = None
-        self._last_arrival_ns = None
-        self._stale = False
-        self.counts = {"samples": 0, "malformed": 0, "non_finite": 0, "duplicate": 0, "out_of_order": 0,
-                       "implausible": 0, "stale_episodes": 0, "resets": 0}
-
-        self._command_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_BATTERY_COMMAND))
-        self._state_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_CONTROLLER_STATE))
-        self._diag_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_DIAGNOSTICS))
-        pmu_type, pmu_topic, pmu_qos = contract.endpoint(contract.TOPIC_PMU)
-        self.create_subscription(pmu_type, pmu_topic, self._on_measurement, pmu_qos)
-        # Fires only after stale_after_s without a measurement: every measurement
-        # restarts it. Profiled: a timer at the sample rate doubled the executor's
-        # wake-ups (one timer callback per measurement, ~0.1 ms each at 1000/s)
-        # and, at the plant's own rate, could fire just as a measurement arrived.
-        self._stale_timer = self.create_timer(self._config.stale_after_s, self._check_stale)
+        config = ControllerConfig(current_values(self, PARAMETERS))
+        self._core, self._clock_ns = ControllerCore(config), None
+        # Warm the answer path once, publishing nothing. Profiled: the first pass costs ~5 ms (first JointState,
+        # numpy's first calls), which sample 0 would otherwise pay as latency (above 200/s, as a deadline miss).
+        warm = ControllerCore(config).measurement(0, config.plant.delta_bar_rad, 0.0, 0, 0)
+        contract.command_message(0, warm.power_pu), contract.controller_state_message(*warm.signals())
+        self._command_pub, self._state_pub, self._diag_pub = contract.publishers(
+            self, contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE, contract.TOPIC_DIAGNOSTICS)
+        contract.subscribe(self, contract.TOPIC_PMU, self._on_measurement)
+        self._clock_sub = contract.subscribe(self, contract.TOPIC_CLOCK,
+                                             lambda msg: setattr(self, "_clock_ns", contract.ns_from_time(msg.clock)))
+        # Restarted by each measurement: it fires only on silence (profiled: one at the sample rate doubled wake-ups).
+        self._stale_timer = self.create_timer(config.stale_after_s, self._check_stale)
+        install_validation(self, PARAMETERS, self._validate, self._install)
         self.create_timer(1.0, self._publish_diagnostics)
 
-    def _warm_up(self) -> None:
-        """Run the answer path once on a throwaway law and messages, publishing nothing.
+    def _validate(self, values: dict) -> ControllerConfig:
+        locked_changes(self._core.config.values, values, LOCKED_WHEN_ACTIVE if self._core.active else ())
+        return ControllerConfig(values)
 
-        Profiled: the first pass costs ~5 ms (first JointState construction,
-        numpy's first calls), which the first real sample would otherwise pay
-        as latency (and, above 200 frames/s, as a deadline miss).
-        """
-        config = self._config
-        _, delta, speed = contract.pmu_from_message(contract.pmu_message(0, config.plant.delta_bar_rad, 0.0, 0.0))
-        power, w, saturated = SampledController(config.plant, config.ctrl, config.period_s).step(0.0)
-        w_hat = float(closed_loop_lyapunov(0.0, speed, 0.0, config.plant, config.ctrl))
-        contract.command_message(0, power)
-        contract.controller_state_message(0, 0.0, 0.0, w, power, saturated, w_hat, config.ctrl.battery_limit_pu)
-
-    def _apply_config(self, values: dict) -> None:
-        config = ControllerConfig(values)
-        if config.period_s != self._config.period_s:
-            raise ValueError("sample_rate_hz cannot change while running (it fixes the discretisation)")
-        if config.stale_after_s != self._config.stale_after_s:
-            self._stale_timer.timer_period_ns = round(config.stale_after_s * 1e9)
-        self._config = config
-        self._law = SampledController(config.plant, config.ctrl, config.period_s, x3=self._law.x3)
+    def _install(self, config: ControllerConfig) -> None:
+        self._core.reconfigure(config)
+        self._stale_timer.timer_period_ns = config.gate_bounds[0]
 
     def _on_measurement(self, msg) -> None:
+        arrival_ns = self.get_clock().now().nanoseconds
         try:
             stamp_ns, delta, speed = contract.pmu_from_message(msg)
-        except contract.ContractError as exc:
-            self.counts["non_finite" if "non-finite" in str(exc) else "malformed"] += 1
+        except contract.ContractError:
+            self._core.gate.malformed()
             return
-        if abs(delta) > MAX_PLAUSIBLE_ANGLE_RAD or abs(speed) > MAX_PLAUSIBLE_SPEED_RAD_S:
-            self.counts["implausible"] += 1
-            return
-        if self._last_stamp_ns is not None and stamp_ns <= self._last_stamp_ns:
-            self.counts["duplicate" if stamp_ns == self._last_stamp_ns else "out_of_order"] += 1
-            return
-        gap_s = None if self._last_stamp_ns is None else (stamp_ns - self._last_stamp_ns) * 1e-9
-        self._last_stamp_ns = stamp_ns
-        if gap_s is not None and gap_s > self._config.stale_after_s:
-            # Data went missing in its own time base: the state no longer describes
-            # the plant, so restart from steady state rather than jump.
-            self._law.reset()
-            self.counts["resets"] += 1
-        angle_dev = delta - self._config.plant.delta_bar_rad
-        x3 = self._law.x3
-        power, w, saturated = self._law.step(angle_dev)
-        self._command_pub.publish(contract.command_message(stamp_ns, power))
-        # Bookkeeping after the answer is out: none of it changes the command.
-        self._last_arrival_ns = self.get_clock().now().nanoseconds
-        self._stale_timer.reset()
-        self._stale = False
-        self.counts["samples"] += 1
-        w_hat = float(closed_loop_lyapunov(angle_dev, speed, x3, self._config.plant, self._config.ctrl))
-        self._state_pub.publish(contract.controller_state_message(
-            stamp_ns, angle_dev, x3, w, power, saturated, w_hat, self._config.ctrl.battery_limit_pu))
+        # Stamps are checked against /clock when a plant publishes it (0 before its first tick), else wall time.
+        simulated = self._clock_ns is not None or self._clock_sub.get_publisher_count() > 0
+        answer = self._core.measurement(stamp_ns, delta, speed, (self._clock_ns or 0) if simulated else arrival_ns,
+                                        arrival_ns)
+        if answer is not None:
+            self._command_pub.publish(contract.command_message(stamp_ns, answer.power_pu))
+            self._stale_timer.reset()  # bookkeeping after the answer is out: none of it changes the command
+            self._state_pub.publish(contract.controller_state_message(*answer.signals()))
 
     def _check_stale(self) -> None:
-        if self._stale or self._last_arrival_ns is None:
-            return
-        silent_ns = self.get_clock().now().nanoseconds - self._last_arrival_ns
-        silent_s = silent_ns * 1e-9
-        if silent_s > self._config.stale_after_s:
-            self._stale = True
-            self.counts["stale_episodes"] += 1
-            # It answers no measurement: stamped in the measurements' time base (simulated
-            # time in lockstep) at the instant the silence was noticed, after the last one.
-            self._command_pub.publish(contract.command_message(self._last_stamp_ns + silent_ns, 0.0))
-            self.get_logger().warning(f"no measurement for {silent_s:.3f} s: battery power set to zero")
+        stamp_ns = self._core.gate.silence(self.get_clock().now().nanoseconds)
+        if stamp_ns is not None:
+            self._command_pub.publish(contract.command_message(stamp_ns, 0.0))
+            self.get_logger().warning(f"no measurement for {self._core.config.stale_after_s:g} s: battery power set to zero")
 
     def _publish_diagnostics(self) -> None:
-        level, message = (b"\x03", "STALE") if self._stale else (b"\x00", "OK")
-        values = {"x3": self._law.x3, "battery_limit_pu": self._config.ctrl.battery_limit_pu, **self.counts}
-        self._diag_pub.publish(contract.diagnostics_message(
-            self.get_clock().now().nanoseconds, "controller", self.get_fully_qualified_name(), level, message,
-            values))
+        core = self._core
+        level, message = (DiagnosticStatus.STALE, "STALE") if core.gate.stale else (DiagnosticStatus.OK, "OK")
+        values = {"x3": core.law.x3, "battery_limit_pu": core.config.ctrl.battery_limit_pu, **core.gate.counts}
+        self._diag_pub.publish(contract.diagnostics_message(self.get_clock().now().nanoseconds, "controller",
+                                                            self.get_fully_qualified_name(), level, message, values))
 
     def close(self) -> None:
         """Final diagnostics before the node goes."""

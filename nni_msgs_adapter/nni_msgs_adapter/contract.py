@@ -53,16 +53,27 @@ ROTOR_JOINT = "rotor"
 BATTERY_JOINT = "battery"
 CONTROLLER_SIGNALS = ("angle_dev", "x3", "w", "battery_power", "saturated", "w_hat", "battery_limit")
 
+#: History depth of every per-sample stream, at the writers and at the subscribers that
+#: must keep every message (the MCAP logger, the Rerun bridge, the tests' probes). The
+#: lockstep plant waits for the controller only, never for a recorder, so a recorder whose
+#: callbacks fall behind must find the backlog still there: a reliable KEEP_LAST writer
+#: drops its oldest samples once ``depth`` of them are unacknowledged, whatever the reader's
+#: depth. Measured: with depth 100 at the writers, one `nni-demo --b 0.3` lockstep run on a
+#: loaded 2-core machine recorded 309 of 500 measurements (one 192-sample hole on every
+#: topic); with depth 100 at a probe, 87 to 151 of 501 states were lost. 10,000 samples is
+#: 10 s at 1000 frames/s, about 1 MB per topic at most.
+RECORDER_DEPTH = 10_000
+
 # Every per-sample stream (measurements, commands, states): RELIABLE because the
 # lockstep handshake needs every sample answered, a lost command is a missed
 # control action and the recording must be complete; on localhost reliability
-# costs no round trip unless a sample is lost. KEEP_LAST 100 bounds memory while
-# letting a subscriber that stalls for up to 100 samples (the logger on a busy
-# disk, 0.1 s at 1000 frames/s) catch up with nothing lost; the controller
-# itself never has more than one sample outstanding. VOLATILE because an old
-# sample is worthless to a controller that (re)starts.
+# costs no round trip unless a sample is lost. KEEP_LAST RECORDER_DEPTH bounds memory
+# while letting a subscriber that stalls (the logger on a busy disk or a loaded
+# machine) catch up with nothing lost; the controller itself never has more than one
+# sample outstanding. VOLATILE because an old sample is worthless to a controller
+# that (re)starts.
 SAMPLE_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=100,
+    history=HistoryPolicy.KEEP_LAST, depth=RECORDER_DEPTH,
     reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
 )
 # Description published once and kept for late joiners (logger, viewers): latched.
@@ -76,10 +87,10 @@ DIAGNOSTICS_QOS = QoSProfile(
     reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
 )
 # /clock: nodes only need the latest time, but the recording should hold every
-# tick, so KEEP_LAST 100 as for samples; RELIABLE offered so both reliable and
+# tick, so the samples' depth; RELIABLE offered so both reliable and
 # best-effort (rclpy's TimeSource) subscribers match.
 CLOCK_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=100,
+    history=HistoryPolicy.KEEP_LAST, depth=RECORDER_DEPTH,
     reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
 )
 
@@ -95,16 +106,6 @@ TOPICS = {
 }
 
 
-#: History depth of the subscribers that must keep every message: the MCAP logger,
-#: the Rerun bridge and the tests' probes. The lockstep plant waits for the
-#: controller only, never for a recorder, so a recorder whose Python callbacks
-#: fall behind must absorb the backlog in its reader history (DDS receives and
-#: acknowledges on its own thread; Python takes later). Measured: with depth 100 a
-#: probe on a loaded 2-core machine stalled for about 1 s of a lockstep run and
-#: lost 87 to 151 of its 501 states, always a block ending 100 samples before the
-#: end. 10,000 samples is 10 s at 1000 frames/s, about 1 MB per topic at most.
-#: Depth is not part of QoS matching, so the publishers keep the contract's QoS.
-RECORDER_DEPTH = 10_000
 
 
 def endpoint(topic: str) -> tuple:
@@ -114,15 +115,53 @@ def endpoint(topic: str) -> tuple:
 
 
 def recorder_endpoint(topic: str) -> tuple:
-    """As :func:`endpoint`, for a subscriber that must keep every message: depth ``RECORDER_DEPTH``."""
+    """As :func:`endpoint`, for a subscriber that must keep every message: at least ``RECORDER_DEPTH`` deep."""
     msg_class, name, qos = endpoint(topic)
     deep = QoSProfile(history=qos.history, depth=max(qos.depth, RECORDER_DEPTH), reliability=qos.reliability,
                       durability=qos.durability)
     return msg_class, name, deep
 
 
+def publishers(node, *topics) -> list:
+    """One publisher of ``node`` per contract topic, with the contract's QoS."""
+    return [node.create_publisher(*endpoint(topic)) for topic in topics]
+
+
+def subscribe(node, topic: str, callback):
+    """A subscription of ``node`` to a contract topic, with the contract's QoS."""
+    msg_class, name, qos = endpoint(topic)
+    return node.create_subscription(msg_class, name, callback, qos)
+
+
 class ContractError(ValueError):
     """A message that does not follow the contract (wrong joints, sizes or values)."""
+
+
+def log_at(logger, level: str, text: str) -> None:
+    """Log ``text`` at ``level`` ("info", "warning" or "error"): rclpy fixes one severity per call site."""
+    if level == "error":
+        logger.error(text)
+    elif level == "warning":
+        logger.warning(text)
+    else:
+        logger.info(text)
+
+
+#: Name of a publisher the ROS graph lists but cannot name yet.
+UNNAMED_WRITER = "(a node not yet named in the ROS graph)"
+
+
+def writers_on(node, topic: str, matched: int) -> tuple[dict[bytes, str], int]:
+    """``({GID: node name}, unlisted)``: the publishers on ``topic`` (resolved name) in ``node``'s ROS graph.
+
+    ``matched``: how many publishers a subscription of ``node`` has matched;
+    ``unlisted``: how many of them the graph does not list yet (someone all the
+    same). A listed one whose node is not named yet is :data:`UNNAMED_WRITER`.
+    """
+    writers = {bytes(info.endpoint_gid): UNNAMED_WRITER if info.node_name == "_NODE_NAME_UNKNOWN_"
+               else f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+               for info in node.get_publishers_info_by_topic(topic)}
+    return writers, max(0, matched - len(writers))
 
 
 def time_from_ns(stamp_ns: int) -> Time:
@@ -133,11 +172,6 @@ def time_from_ns(stamp_ns: int) -> Time:
 def ns_from_time(stamp: Time) -> int:
     """Integer nanoseconds from builtin_interfaces/Time."""
     return stamp.sec * 1_000_000_000 + stamp.nanosec
-
-
-def ns_from_seconds(t_s: float) -> int:
-    """Nanoseconds nearest to ``t_s`` seconds (simulated time stamps)."""
-    return int(round(t_s * 1e9))
 
 
 def pmu_message(stamp_ns: int, delta_rad: float, speed_rad_s: float, p_elec_pu: float) -> JointState:
@@ -153,8 +187,8 @@ def pmu_message(stamp_ns: int, delta_rad: float, speed_rad_s: float, p_elec_pu: 
 
 
 def pmu_from_message(msg: JointState) -> tuple[int, float, float]:
-    """``(stamp_ns, delta rad, speed deviation rad/s)``; ContractError if malformed."""
-    _expect_joint(msg, ROTOR_JOINT, need_velocity=True)
+    """``(stamp_ns, delta rad, speed deviation rad/s)``; ContractError if malformed (values unchecked: the gate's job)."""
+    _expect_joint(msg, ROTOR_JOINT)
     return ns_from_time(msg.header.stamp), msg.position[0], msg.velocity[0]
 
 
@@ -182,7 +216,9 @@ def plant_state_message(stamp_ns: int, delta_rad: float, speed_rad_s: float, bat
 
 def plant_state_from_message(msg: JointState) -> tuple[int, float, float, float]:
     """``(stamp_ns, delta rad, speed rad/s, battery power pu)``."""
-    _expect_joint(msg, ROTOR_JOINT, need_velocity=True)
+    _expect_joint(msg, ROTOR_JOINT)
+    if not all(math.isfinite(v) for v in (*msg.position, *msg.velocity)):
+        raise ContractError(f"non-finite value in {ROTOR_JOINT!r} state")
     if len(msg.effort) != 1:
         raise ContractError("plant state must carry one effort (battery power)")
     return ns_from_time(msg.header.stamp), msg.position[0], msg.velocity[0], msg.effort[0]
@@ -254,8 +290,6 @@ def _format_value(value) -> str:
     return str(value)
 
 
-def _expect_joint(msg: JointState, joint: str, need_velocity: bool) -> None:
-    if list(msg.name) != [joint] or len(msg.position) != 1 or (need_velocity and len(msg.velocity) != 1):
+def _expect_joint(msg: JointState, joint: str) -> None:
+    if list(msg.name) != [joint] or len(msg.position) != 1 or len(msg.velocity) != 1:
         raise ContractError(f"expected one joint {joint!r} with position and velocity, got names {list(msg.name)}")
-    if not all(math.isfinite(v) for v in (*msg.position, *msg.velocity)):
-        raise ContractError(f"non-finite value in {joint!r} measurement")

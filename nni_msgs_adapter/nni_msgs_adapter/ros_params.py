@@ -3,7 +3,8 @@
 Each parameter is declared once with its type, default, description (with unit)
 and range; the node's own validation (a dataclass constructor raising ValueError
 that names the violated condition) runs on start-up and on every runtime change,
-and an invalid change is rejected with that reason, the old values kept.
+and an invalid change is rejected with that reason, the old values kept. While
+a run is active the safety-relevant parameters are locked (:func:`locked_changes`).
 """
 
 from __future__ import annotations
@@ -59,24 +60,39 @@ def check_choices(values: dict, specs) -> None:
             raise ValueError(f"{spec.name} must be one of {', '.join(spec.choices)}, got {values[spec.name]!r}")
 
 
-def install_validation(node, specs, apply) -> None:
-    """Re-validate every runtime change with ``apply(new_values)``.
+def install_validation(node, specs, prepare, install) -> None:
+    """Validate every runtime change with ``prepare(new_values)``; apply it with ``install`` once it is set.
 
-    ``apply`` builds and installs the node's configuration from the full value
-    dict, raising ValueError (message = reason) to reject the change; nothing
-    is installed then, so the old values stay.
+    ``prepare`` builds the node's configuration from the full value dict,
+    raising ValueError (message = reason) to reject the change, and changes
+    nothing; the on-set callback only calls it. rclpy's post-set callback then
+    hands what it built to ``install``, so nothing is installed for a rejected
+    change and the old values stay.
     """
     names = {spec.name for spec in specs}
+    prepared = []
 
     def on_set(parameters):
         proposed = current_values(node, specs)
         proposed.update({p.name: p.value for p in parameters if p.name in names})
         try:
             check_choices(proposed, specs)
-            apply(proposed)
+            prepared[:] = [prepare(proposed)]
         except ValueError as exc:
             node.get_logger().warning(f"rejected parameter change: {exc}")
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
 
+    def post_set(parameters):
+        if prepared:
+            install(prepared.pop())
+
     node.add_on_set_parameters_callback(on_set)
+    node.add_post_set_parameters_callback(post_set)
+
+
+def locked_changes(old: dict, new: dict, locked, when: str = "while a run is active (safety lockdown)") -> None:
+    """ValueError naming the parameters among ``locked`` whose values differ between ``old`` and ``new``."""
+    changed = sorted(name for name in locked if old.get(name) != new.get(name))
+    if changed:
+        raise ValueError(f"{', '.join(changed)} cannot change {when}")

@@ -96,7 +96,6 @@ class LoopStats:
         self.last_answered_stamp_ns: int | None = None
         self.last_answer_wall_ns: int | None = None
         self.late = 0
-        self.rejected = 0
         self.deadline_misses = 0
         self.command_timeouts = 0
         self.duplicates = 0
@@ -122,6 +121,14 @@ class LoopStats:
         if self.last_sent_stamp_ns is not None and self.last_answered_stamp_ns != self.last_sent_stamp_ns:
             self.deadline_misses += 1
 
+    def sent_wall_ns(self, stamp_ns: int) -> int | None:
+        """Wall time the measurement stamped ``stamp_ns`` left the plant, or None if it sent none (or forgot it)."""
+        return self._sent_wall_ns.get(stamp_ns)
+
+    def is_answered(self, stamp_ns: int) -> bool:
+        """True if an answer to this or a later measurement has been counted already."""
+        return self.last_answered_stamp_ns is not None and stamp_ns <= self.last_answered_stamp_ns
+
     def answered(self, stamp_ns: int, arrival_ns: int) -> bool:
         """A command stamped ``stamp_ns`` arrived. False for a duplicate or out-of-order answer (not to be applied).
 
@@ -132,7 +139,7 @@ class LoopStats:
         bookkeeping alone: were it to count, its stamp could be later than the
         next measurement's and the real answer to that would be refused.
         """
-        if self.last_answered_stamp_ns is not None and stamp_ns <= self.last_answered_stamp_ns:
+        if self.is_answered(stamp_ns):
             self.duplicates += 1
             return False
         sent_ns = self._sent_wall_ns.get(stamp_ns)
@@ -152,7 +159,6 @@ class LoopStats:
         """Counters and latency / jitter / turnaround percentiles in ms, for diagnostics."""
         out = {
             "measurements": self.measurements, "commands": self.latency.count, "late": self.late,
-            "rejected": self.rejected,
             "duplicates": self.duplicates, "deadline_misses": self.deadline_misses,
             "command_timeouts": self.command_timeouts, "skipped_reports": self.skipped_reports,
         }
