@@ -81,9 +81,12 @@ def electrical_power(delta_rad, coupling):
 
 
 def network_acceleration(delta_rad, speed_rad_s, battery_power_pu, net: "Network", p_mech_pu, coupling):
-    """Rotor accelerations of all generators (rad/s^2), shape of ``delta_rad``: (N,) or (N, R)."""
+    """Rotor accelerations of all generators (rad/s^2), shape of ``delta_rad``: (N,) or (N, R).
+
+    ``p_mech_pu`` has shape (N,); ``battery_power_pu`` broadcasts against ``delta_rad``.
+    """
     column = (slice(None),) + (None,) * (np.ndim(delta_rad) - 1)
-    return swing_acceleration(p_mech_pu, battery_power_pu, electrical_power(delta_rad, coupling), speed_rad_s,
+    return swing_acceleration(p_mech_pu[column], battery_power_pu, electrical_power(delta_rad, coupling), speed_rad_s,
                               net.damping_pu[column], net.inertia_m[column])
 
 
@@ -199,6 +202,16 @@ class BusModel:
             raise ValueError(f"bus {bus} is not in the case (buses {int(self.bus_numbers.min())}.."
                              f"{int(self.bus_numbers.max())})")
         return int(where[0])
+
+    def branch_index(self, from_bus: int, to_bus: int, circuit: int = 1) -> int:
+        """Index of the ``circuit``-th branch (1-based, in case order) between two buses, either direction."""
+        f, t = self.bus_index(from_bus), self.bus_index(to_bus)
+        matches = np.flatnonzero(((self.branch_ends[:, 0] == f) & (self.branch_ends[:, 1] == t))
+                                 | ((self.branch_ends[:, 0] == t) & (self.branch_ends[:, 1] == f)))
+        if not 1 <= circuit <= matches.size:
+            raise ValueError(f"no circuit {circuit} between buses {from_bus} and {to_bus} "
+                             f"(the case has {matches.size})")
+        return int(matches[circuit - 1])
 
     def reduced_admittance(self, fault_bus=None, fault_impedance_pu: complex = 0.0, tripped=()) -> np.ndarray:
         """Kron reduction to the internal nodes: ``Y_gg - Y_gb Y_bb^-1 Y_bg`` (N x N complex)."""
