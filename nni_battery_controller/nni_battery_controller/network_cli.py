@@ -172,7 +172,8 @@ def format_run(outcome, b, reference, net) -> str:
     verdict = ("in synchronism" if outcome.in_synchronism else f"LOST SYNCHRONISM at {outcome.pole_slip_s:.2f} s") \
         + (", settled" if outcome.settled else ", not settled")
     head = f"{_b_text(b, net)}, reference {reference}: {verdict} (max angle spread " \
-           f"{math.degrees(outcome.max_angle_spread_rad):.1f} deg)"
+           f"{math.degrees(outcome.max_angle_spread_rad):.1f} deg, final COI frequency deviation " \
+           f"{outcome.final_coi_frequency_hz:+.3f} Hz)"
     header = f"  {'generator':<9} {'in sync':>7} {'settled':>7} {'settle (s)':>10} {'max|P_ST| (pu)':>14} " \
              f"{'max|P_ST| (MW)':>14} {'last sat (s)':>12}"
     rows = [head, header, "  " + "-" * (len(header) - 2)]

@@ -197,7 +197,9 @@ class NetworkOutcome:
     in_synchronism: no pair of generators ever more than 180 degrees apart
     (sampled at the PMU instants); pole_slip_s: the first sample where a pair
     was; settled: every generator's COI-relative angle within SETTLE_BAND_RAD of
-    its final value over the last second; stable: both.
+    its final value over the last second; stable: both. final_coi_frequency_hz:
+    the centre of inertia's frequency deviation at the end (without governors
+    nothing restores it; the COI reference does not see it).
     """
 
     in_synchronism: bool
@@ -205,6 +207,7 @@ class NetworkOutcome:
     settled: bool
     stable: bool
     max_angle_spread_rad: float
+    final_coi_frequency_hz: float
     generators: tuple
 
     def to_json(self) -> dict:
@@ -246,8 +249,10 @@ def assess_network(traj: NetworkTrajectory, settle_band_rad: float = SETTLE_BAND
                 peak * net.base_mva, float(traj.limits_pu[i, r] * scale),
                 float(sat_times.max()) if sat_times.size else None))
         settled_all = all(g.settled for g in generators)
+        coi_speed = float(net.coi(traj.speed_rad_s[-1, :, r]))
         outcomes.append(NetworkOutcome(in_sync, None if in_sync else float(t[slipped[0]]), settled_all,
-                                       in_sync and settled_all, float(spread[:, r].max()), tuple(generators)))
+                                       in_sync and settled_all, float(spread[:, r].max()),
+                                       coi_speed / (2.0 * math.pi), tuple(generators)))
     return outcomes
 
 
@@ -260,9 +265,10 @@ def critical_clearing_times(net: Network, law: NetworkLaw, make_fault, limits_pu
     times. All limits and ``points`` candidate clearing times per limit run in
     one vectorised integration per round; each round narrows every bracket
     [stable, unstable] to one of ``points + 1`` parts, down to ``resolution_s``.
-    Returns per limit ``(cct_s or None, bracket)``: ``None`` when even the
-    shortest clearing time loses synchronism, ``cct = high_s`` with an open
-    bracket when ``high_s`` still holds (reported as a lower bound by callers).
+    Stability is monotone in the clearing time by assumption (the usual one).
+    Returns per limit ``(cct_s or None, (stable_s, unstable_s), at_limit)``:
+    ``None`` when even the shortest clearing time loses synchronism;
+    ``at_limit`` when ``high_s`` still holds (the CCT is then at least high_s).
     """
     step = resolution_s
     lo = np.zeros(len(limits_pu_mbase), dtype=int)                 # known stable (0: no fault at all)
