@@ -21,7 +21,7 @@ as the fixed source and a lossless line (``G = 0``, ``E V_s B_is = P_max``):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -49,6 +49,11 @@ class Coupling:
     bs: np.ndarray
     gc_source: np.ndarray
     bs_source: np.ndarray
+    block: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        # [[Gc, -Bs], [Bs, Gc]] @ [c; s] gives both sums of electrical_power in one product.
+        object.__setattr__(self, "block", np.block([[self.gc, -self.bs], [self.bs, self.gc]]))
 
 
 @dataclass(frozen=True)
@@ -68,16 +73,17 @@ def electrical_power(delta_rad, coupling):
 
     ``delta_rad`` has shape (N,) or (N, R) (R runs); returns the same shape.
     With ``c = cos(delta)``, ``s = sin(delta)`` the double sum is
-    ``c (Gc c - Bs s) + s (Gc s + Bs c)``: 2N sines and cosines instead of N^2.
+    ``c (Gc c - Bs s) + s (Gc s + Bs c)``: 2N sines and cosines instead of N^2,
+    both sums from one matrix product (``Coupling.block``).
     """
     if isinstance(coupling, Switched):
         return np.where(coupling.use_first, electrical_power(delta_rad, coupling.first),
                         electrical_power(delta_rad, coupling.second))
     c, s = np.cos(delta_rad), np.sin(delta_rad)
-    gc, bs = coupling.gc, coupling.bs
+    n = c.shape[0]
+    sums = coupling.block @ np.concatenate((c, s))
     column = (slice(None),) + (None,) * (np.ndim(delta_rad) - 1)
-    return (c * (gc @ c - bs @ s) + s * (gc @ s + bs @ c)
-            + coupling.gc_source[column] * c + coupling.bs_source[column] * s)
+    return c * sums[:n] + s * sums[n:] + coupling.gc_source[column] * c + coupling.bs_source[column] * s
 
 
 def network_acceleration(delta_rad, speed_rad_s, battery_power_pu, net: "Network", p_mech_pu, coupling):

@@ -54,11 +54,16 @@ class BusFault:
         return _equilibrium(net)
 
     def network(self, t_s: float, net: Network):
-        """Faulted network until clearing (per run for an array of clearing times), then the post-fault one."""
-        clearing = self.clearing_time_s
-        if np.ndim(clearing) == 0:
-            return net.p_mech_pu, (self._during if t_s < clearing else self._after)
-        return net.p_mech_pu, Switched(self._during, self._after, t_s < np.asarray(clearing))
+        """Faulted network until clearing (per run for an array of clearing times), then the post-fault one.
+
+        Between the first and the last clearing time of a batch each run gets its own (:class:`Switched`).
+        """
+        clearing = np.asarray(self.clearing_time_s)
+        if t_s < clearing.min():
+            return net.p_mech_pu, self._during
+        if t_s >= clearing.max():
+            return net.p_mech_pu, self._after
+        return net.p_mech_pu, Switched(self._during, self._after, t_s < clearing)
 
     def breakpoints(self) -> tuple[float, ...]:
         """The clearing instant(s)."""

@@ -110,7 +110,11 @@ def build(name: str, bus: int, xf: float, trip, clearing_s: float) -> andes.Syst
 
 
 def simulate(name, bus, xf, trip, clearing_s):
-    """(times since the fault, rotor angles (T, N), inertias M) of one ANDES run."""
+    """(times since the fault, rotor angles (T, N), inertias M) of one ANDES run.
+
+    A run that ANDES ends early (its Newton iterations fail as the machines
+    separate) ends before ``AFTER_FAULT_S``: see :func:`stays_in_step`.
+    """
     ss = build(name, bus, xf, trip, clearing_s)
     ss.TDS.config.tf = FAULT_START_S + AFTER_FAULT_S
     ss.TDS.config.tstep = STEP_S
@@ -124,9 +128,17 @@ def simulate(name, bus, xf, trip, clearing_s):
     return t - FAULT_START_S, delta, np.asarray(ss.GENCLS.M.v) * np.asarray(ss.GENCLS.Sn.v)
 
 
-def stays_in_step(delta: np.ndarray) -> bool:
-    """No pair of generators more than 180 degrees apart (ANDES's own ddelta criterion)."""
-    return bool(np.all(delta.max(axis=1) - delta.min(axis=1) <= math.pi))
+def stays_in_step(t: np.ndarray, delta: np.ndarray) -> bool:
+    """No pair of generators more than 180 degrees apart (ANDES's own ddelta criterion) over the whole run.
+
+    A run ANDES could not finish counts as not staying in step, and says so.
+    """
+    in_step = bool(np.all(delta.max(axis=1) - delta.min(axis=1) <= math.pi))
+    if in_step and t[-1] < AFTER_FAULT_S - 1e-6:
+        print(f"  ANDES stopped at {t[-1]:.3f} s before any pair passed 180 degrees: counted as lost",
+              file=sys.stderr)
+        return False
+    return in_step
 
 
 def critical_clearing_time(name, bus, xf, trip, high_s):
@@ -134,7 +146,8 @@ def critical_clearing_time(name, bus, xf, trip, high_s):
     lo, hi = 0, int(round(high_s / 1e-3)) + 1
     while hi - lo > 1:
         mid = (lo + hi) // 2
-        if stays_in_step(simulate(name, bus, xf, trip, mid * 1e-3)[1]):
+        t, delta, _ = simulate(name, bus, xf, trip, mid * 1e-3)
+        if stays_in_step(t, delta):
             lo = mid
         else:
             hi = mid
@@ -148,6 +161,8 @@ def main() -> int:
            "fault_start_s": FAULT_START_S, "faults": []}
     for name, bus, xf, trip, clearing_s, high_s in FAULTS:
         t, delta, m = simulate(name, bus, xf, trip, clearing_s)
+        if not stays_in_step(t, delta):
+            raise RuntimeError(f"{name} bus {bus}: the reference run at {clearing_s} s is not in step")
         coi = delta @ m / m.sum()
         grid = np.arange(int(round(AFTER_FAULT_S / 0.01)) + 1) * 0.01
         relative = np.column_stack([np.interp(grid, t, column) for column in (delta - coi[:, None]).T])
