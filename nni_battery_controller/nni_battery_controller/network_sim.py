@@ -265,7 +265,11 @@ def critical_clearing_times(net: Network, law: NetworkLaw, make_fault, limits_pu
     times. All limits and ``points`` candidate clearing times per limit run in
     one vectorised integration per round; each round narrows every bracket
     [stable, unstable] to one of ``points + 1`` parts, down to ``resolution_s``.
-    Stability is monotone in the clearing time by assumption (the usual one).
+    The CCT is the first loss: a stable candidate beyond the shortest unstable
+    one found is ignored (stability need not be monotone in the clearing time:
+    with batteries it sometimes is not). Between candidates monotonicity is
+    assumed, as any bisection does: a finer search (``points``) can find an
+    earlier loss.
     Returns per limit ``(cct_s or None, (stable_s, unstable_s), at_limit)``:
     ``None`` when even the shortest clearing time loses synchronism;
     ``at_limit`` when ``high_s`` still holds (the CCT is then at least high_s).
@@ -288,10 +292,9 @@ def critical_clearing_times(net: Network, law: NetworkLaw, make_fault, limits_pu
         for j in np.unique(owners):
             mine = owners == j
             good, bad = candidates[mine & stable], candidates[mine & ~stable]
-            new_lo = max(lo[j], good.max()) if good.size else lo[j]
-            bad = bad[bad > new_lo]
             hi[j] = min(hi[j], bad.min()) if bad.size else hi[j]
-            lo[j] = new_lo
+            good = good[good < hi[j]]
+            lo[j] = max(lo[j], good.max()) if good.size else lo[j]
     top = int(round(high_s / step))
     return [(None if lo[j] == 0 else float(lo[j] * step), (float(lo[j] * step), float(hi[j] * step)), lo[j] >= top)
             for j in range(len(limits_pu_mbase))]
