@@ -21,7 +21,7 @@ from nni_battery_controller.network_sim import (
     assess_network,
     simulate_network,
 )
-from nni_plant_sim.cases import _shipped_text, load_network, read_machines, read_matpower
+from nni_plant_sim.cases import shipped_text, load_network, read_machines, read_matpower
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.network import Network, electrical_power, network_acceleration, solve_load_flow
@@ -41,7 +41,7 @@ def ieee39():
 
 def test_kundur_load_flow_reproduces_the_published_operating_point():
     """Kundur (1994) Example 12.6 gives Et angles 20.2, 10.5, -6.8, -17.0 deg and Q 185, 235, 176, 202 MVAr."""
-    solved = solve_load_flow(read_matpower(_shipped_text("kundur_two_area.m")))
+    solved = solve_load_flow(read_matpower(shipped_text("kundur_two_area.m")))
     assert_allclose(solved["bus"][:4, 8], [20.2, 10.5, -6.8, -17.0], atol=0.1)
     assert_allclose(solved["gen"][:, 2], [185, 235, 176, 202], atol=1.0)
     assert solved["gen"][2, 1] == pytest.approx(719, abs=1.0)
@@ -59,9 +59,9 @@ def test_kron_reduction_balances_power_at_the_load_flow_solution(case):
 
         ppc = case39()
     else:
-        ppc = read_matpower(_shipped_text(source))
+        ppc = read_matpower(shipped_text(source))
     solved = solve_load_flow(ppc)
-    machines = read_machines(_shipped_text(machines_file))
+    machines = read_machines(shipped_text(machines_file))
     base = solved["baseMVA"]
     gen_bus = solved["gen"][:, 0].astype(int)
     rows = [np.flatnonzero(solved["bus"][:, 0] == b)[0] for b in gen_bus]
@@ -198,9 +198,9 @@ def test_pole_slip_is_the_pairwise_180_degree_criterion(kundur):
 
 def test_user_matpower_file_gives_the_shipped_network(tmp_path, kundur):
     case = tmp_path / "mine.m"
-    case.write_text(_shipped_text("kundur_two_area.m"))
+    case.write_text(shipped_text("kundur_two_area.m"))
     machines = tmp_path / "mine.csv"
-    machines.write_text(_shipped_text("kundur_two_area_machines.csv"))
+    machines.write_text(shipped_text("kundur_two_area_machines.csv"))
     mine = load_network(str(case), str(machines), 60.0)
     assert_allclose(mine.delta_bar_rad, kundur.delta_bar_rad, atol=1e-12)
     assert_allclose(mine.coupling.bs, kundur.coupling.bs, atol=1e-12)
@@ -209,3 +209,18 @@ def test_user_matpower_file_gives_the_shipped_network(tmp_path, kundur):
     case.write_text("mpc.baseMVA = 100;\nmpc.bus = [1 3 0 0 0 0 1 1 0 20 1 1.1 0.9];\n")
     with pytest.raises(ValueError, match="missing mpc.gen, mpc.branch"):
         load_network(str(case), str(machines), 60.0)
+
+
+def test_dropping_lost_runs_changes_nothing_before_the_loss(kundur):
+    """drop_lost_runs (what --cct uses) stops a lost run at its loss; the other runs are the same floats."""
+    law = NetworkLaw.uniform(kundur, 0.1, 1.0, 1.1, 1.0)
+    clearing = np.array([0.3, 0.95, 0.5])
+    full = simulate_network(kundur, law, BusFault(kundur, 8, clearing), [0.0, 0.0, 0.1], 4.0, 50.0)
+    dropped = simulate_network(kundur, law, BusFault(kundur, 8, clearing), [0.0, 0.0, 0.1], 4.0, 50.0,
+                               drop_lost_runs=True)
+    spread = full.delta_rad.max(axis=1) - full.delta_rad.min(axis=1)
+    loss = int(np.argmax(spread[:, 1] > math.pi))
+    assert loss > 0 and np.all(spread[:, [0, 2]] <= math.pi)
+    assert np.array_equal(dropped.delta_rad[:, :, [0, 2]], full.delta_rad[:, :, [0, 2]])
+    assert np.array_equal(dropped.delta_rad[:loss + 1, :, 1], full.delta_rad[:loss + 1, :, 1])
+    assert np.all(np.isnan(dropped.delta_rad[loss + 1:, :, 1]))

@@ -4,13 +4,14 @@ The network counterparts of :mod:`nni_plant_sim.scenarios`, with the same
 protocol for :func:`nni_plant_sim.integrators.advance`: ``initial_state(net)``
 (shape (2, N): angles and speed deviations), ``network(t_s, net)`` giving
 ``(P_m vector pu, Coupling in force)`` and ``breakpoints()`` (the times it
-jumps). Times are seconds since the disturbance. Pure numpy: no ROS import.
+jumps), and ``narrowed(keep)`` for the runs ``keep`` of a batch. Times are
+seconds since the disturbance. Pure numpy: no ROS import.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -65,6 +66,12 @@ class BusFault:
             return net.p_mech_pu, self._after
         return net.p_mech_pu, Switched(self._during, self._after, t_s < clearing)
 
+    def narrowed(self, keep) -> "BusFault":
+        """The same fault for the runs ``keep`` (boolean, shape (R,)) of a batch of clearing times."""
+        if np.ndim(self.clearing_time_s) == 0:
+            return self
+        return replace(self, clearing_time_s=np.asarray(self.clearing_time_s)[keep])
+
     def breakpoints(self) -> tuple[float, ...]:
         """The clearing instant(s)."""
         return tuple(float(t) for t in np.unique(np.asarray(self.clearing_time_s, dtype=float)))
@@ -90,6 +97,10 @@ class LineTrip:
     def network(self, t_s: float, net: Network):
         """The network without the tripped branches."""
         return net.p_mech_pu, self._after
+
+    def narrowed(self, keep):
+        """The scenario for a subset of a batch's runs: itself (it does not differ between runs)."""
+        return self
 
     def breakpoints(self) -> tuple[float, ...]:
         """None: the trip is at t = 0."""
@@ -121,6 +132,10 @@ class MechanicalStep:
             p_mech[self.machine] = self.p_mech_pu
         return p_mech, net.coupling
 
+    def narrowed(self, keep):
+        """The scenario for a subset of a batch's runs: itself (it does not differ between runs)."""
+        return self
+
     def breakpoints(self) -> tuple[float, ...]:
         """The end of the step, if it ends."""
         return (self.duration_s,) if math.isfinite(self.duration_s) else ()
@@ -143,6 +158,10 @@ class AngleDisplacement:
     def network(self, t_s: float, net: Network):
         """The pre-fault network and powers."""
         return net.p_mech_pu, net.coupling
+
+    def narrowed(self, keep):
+        """The scenario for a subset of a batch's runs: itself (it does not differ between runs)."""
+        return self
 
     def breakpoints(self) -> tuple[float, ...]:
         """None."""

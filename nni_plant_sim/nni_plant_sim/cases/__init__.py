@@ -81,7 +81,8 @@ def read_machines(text: str) -> list[Machine]:
     return machines
 
 
-def _shipped_text(filename: str) -> str:
+def shipped_text(filename: str) -> str:
+    """The text of a file shipped with the cases (a .m network or a machine CSV)."""
     return resources.files(__name__).joinpath(filename).read_text(encoding="utf-8")
 
 
@@ -97,8 +98,8 @@ def load_network(case: str, machines_path: str | None = None, f0_hz: float | Non
 
             ppc = getattr(api, source.split(":", 1)[1])()
         else:
-            ppc = read_matpower(_shipped_text(source))
-        machines = read_machines(_shipped_text(machines_file) if machines_path is None
+            ppc = read_matpower(shipped_text(source))
+        machines = read_machines(shipped_text(machines_file) if machines_path is None
                                  else Path(machines_path).read_text(encoding="utf-8"))
         return network_from_case(ppc, machines, default_f0 if f0_hz is None else f0_hz)
     path = Path(case)
