@@ -6,8 +6,8 @@ ANDES is GPL-3 and not a dependency): ANDES's own load flow and its trapezoidal
 DAE simulation at 1 ms of the same case data, two faults per case. Here the
 project's network core (RK4 at 1 ms, no batteries) runs the same faults.
 
-Stated tolerances: COI-relative rotor angles within 2e-3 rad over the 5 s after
-the fault (different integrators, ANDES's fault as a 1e-4 pu reactance in both),
+Stated tolerances: COI-relative rotor angles within 1e-3 rad over the 5 s after
+the fault (measured: 4.8e-5 to 1.8e-4 rad; different integrators, the fault a 1e-4 pu reactance in both),
 critical clearing times within 2 ms (both on a 1 ms grid): the same plain
 bisection as the script's, run on the project's simulator, and the same verdict
 as ANDES at every clearing time ANDES visited (except within 2 ms of its CCT).
@@ -29,7 +29,7 @@ from nni_plant_sim.network_scenarios import BusFault
 
 REFERENCES = sorted((Path(__file__).parent / "network_reference").glob("andes_reference_*.json"))
 FAULTS = [fault for path in REFERENCES for fault in json.loads(path.read_text())["faults"]]
-ANGLE_TOLERANCE_RAD = 2e-3
+ANGLE_TOLERANCE_RAD = 1e-3
 CCT_TOLERANCE_S = 2e-3
 DURATION_S = 5.0
 

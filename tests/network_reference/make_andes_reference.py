@@ -36,7 +36,7 @@ FAULTS = (
     ("kundur_two_area", 7, 1e-4, (7, 8, 1), 0.1, 1.0),
     ("kundur_two_area", 9, 1e-4, None, 0.1, 1.0),
     ("ieee39", 16, 1e-4, None, 0.1, 0.6),
-    ("ieee39", 26, 1e-4, (26, 29, 1), 0.1, 0.6),
+    ("ieee39", 26, 1e-4, (26, 29, 1), 0.05, 0.6),
 )
 FAULT_START_S = 0.5
 AFTER_FAULT_S = 5.0
