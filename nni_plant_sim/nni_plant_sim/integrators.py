@@ -26,7 +26,8 @@ def rk4_step(t: float, x, h: float, battery_power_pu, plant, scenario) -> np.nda
     returns the same shape. The network is evaluated at the step's start
     (callers split steps at the scenario's breakpoints, so it is constant inside).
     """
-    return np.array(_rk4(t, *_components(x), h, battery_power_pu, plant, scenario, _acceleration_of(plant)))
+    return np.array(_rk4(*_components(x), h, battery_power_pu, plant, scenario.network(t, plant),
+                         _acceleration_of(plant)))
 
 
 def _acceleration_of(plant):
@@ -45,17 +46,18 @@ def _components(x) -> tuple:
     return (float(x[0]), float(x[1])) if x.ndim == 1 else (x[0], x[1])
 
 
-def _rk4(t: float, delta, speed, h: float, battery_power_pu, plant, scenario, acceleration):
+def _rk4(delta, speed, h: float, battery_power_pu, plant, network_in_force, acceleration):
     """RK4 written out for the two states: floats (one trajectory) or arrays (many) alike.
 
-    ``acceleration(delta, speed, battery_power_pu, plant, *scenario.network(t, plant))``
-    is the swing equation (:func:`_acceleration_of`).
+    ``acceleration(delta, speed, battery_power_pu, plant, *network_in_force)``
+    is the swing equation (:func:`_acceleration_of`); ``network_in_force`` is
+    ``scenario.network(t, plant)``, constant over the step.
 
     Stage k_i = (k_i delta, k_i speed) = (speed at the stage, swing acceleration
     at the stage); the same sums as ``x + h/6 (k1 + 2 k2 + 2 k3 + k4)`` on the
     state vector, without allocating one.
     """
-    p_mech, network = scenario.network(t, plant)
+    p_mech, network = network_in_force
     k1_delta, k1_speed = speed, acceleration(delta, speed, battery_power_pu, plant, p_mech, network)
     k2_delta = speed + 0.5 * h * k1_speed
     k2_speed = acceleration(delta + 0.5 * h * k1_delta, k2_delta, battery_power_pu, plant, p_mech, network)
@@ -79,7 +81,9 @@ def advance(
     """Integrate from ``t0_s`` to ``t1_s`` with the battery power held constant.
 
     The interval is split at the scenario's breakpoints, then each piece into
-    equal RK4 steps no longer than ``max_step_s``. Times are seconds since the
+    equal RK4 steps no longer than ``max_step_s``. Between breakpoints the
+    scenario's network is constant, so it is read once per piece (not per
+    step: the plant node's float path saves a call per step). Times are seconds since the
     fault started; ``x`` is ``[delta (rad), speed deviation (rad/s)]``, shape
     (2,) or (2, N) for the SMIB, (2, N) or (2, N, R) for a network of N
     generators (R runs; ``battery_power_pu`` then broadcasts against (N, R));
@@ -95,6 +99,7 @@ def advance(
     for start, stop in zip(cuts[:-1], cuts[1:]):
         steps = max(1, math.ceil((stop - start) / max_step_s - 1e-9))
         h = (stop - start) / steps
-        for i in range(steps):
-            delta, speed = _rk4(start + i * h, delta, speed, h, power, plant, scenario, acceleration)
+        network_in_force = scenario.network(start, plant)
+        for _ in range(steps):
+            delta, speed = _rk4(delta, speed, h, power, plant, network_in_force, acceleration)
     return np.array((delta, speed))
