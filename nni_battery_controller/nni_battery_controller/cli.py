@@ -474,7 +474,11 @@ def apply_mode_defaults(args) -> None:
 
 
 def main(argv=None) -> int:
-    """Entry point of ``nni-simulate``."""
+    """Entry point of ``nni-simulate`` (``--case``: the network study of :mod:`network_cli`)."""
+    if any(arg == "--case" or arg.startswith("--case=") for arg in (sys.argv[1:] if argv is None else argv)):
+        from nni_battery_controller import network_cli
+
+        return network_cli.main(argv)
     parser = build_parser()
 
     def body():

@@ -21,6 +21,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from nni_plant_sim import network
+
 
 def require_finite(owner: object) -> None:
     """Raise ValueError naming every float field of a dataclass that is NaN.
@@ -118,7 +120,11 @@ def swing_acceleration(delta_rad, speed_rad_s, battery_power_pu, plant: SmibPara
                        p_max_pu: float):
     """Rotor acceleration delta'' in rad/s^2: the swing equation with a battery at the generator bus.
 
-    ``M delta'' = P_M + P_ST - P_max sin(delta) - D delta'``. Python floats in,
+    ``M delta'' = P_M + P_ST - P_max sin(delta) - D delta'``: the network's swing
+    equation (:func:`nni_plant_sim.network.swing_acceleration`) with the one
+    machine's electrical power against the infinite bus, ``P_e = P_max sin(delta)``
+    (what :func:`nni_plant_sim.network.electrical_power` gives for
+    :meth:`nni_plant_sim.network.Network.from_smib`, bit for bit). Python floats in,
     float out (``math.sin``: the plant node's path, 40 calls a sample, where
     numpy's per-call overhead on scalars would dominate); numpy arrays in,
     array out (vectorised over trajectories). A diverged state (inf) gives NaN
@@ -140,7 +146,8 @@ def swing_acceleration(delta_rad, speed_rad_s, battery_power_pu, plant: SmibPara
         sine = math.sin(delta_rad) if math.isfinite(delta_rad) else math.nan
     else:
         sine = np.sin(delta_rad)
-    return (p_mech_pu + battery_power_pu - p_max_pu * sine - plant.damping_pu * speed_rad_s) / plant.inertia_m
+    return network.swing_acceleration(p_mech_pu, battery_power_pu, p_max_pu * sine, speed_rad_s, plant.damping_pu,
+                                      plant.inertia_m)
 
 
 def swing_rhs(x, battery_power_pu, plant: SmibParams, p_mech_pu: float, p_max_pu: float):

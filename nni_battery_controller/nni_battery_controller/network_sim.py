@@ -1,0 +1,313 @@
+"""The saturated H3-hat at every generator of a network, sampled at the PMU rate, offline.
+
+Per generator i, with local information only (its own angle and the electrical
+power a PMU at its terminals measures):
+
+    g_i   = P_e,i(delta_bar) - P_e,i(measured)
+    w_i   = x3_i - L_i d_i - g_i,      P_ST,i = sat_b_i(w_i)
+    x3_i  advanced exactly over the period for the mode held (as law.SampledController)
+
+``d_i`` is the angle deviation against the reference chosen: ``pmu`` (the PMU's
+own angle against the nominal-frequency reference, ``delta_i - delta_bar_i``)
+or ``coi`` (relative to the centre of inertia, which needs every generator's
+angle: a distributed controller). Gains and limits are given per generator in
+pu of the machine's rating and converted to the system base.
+
+Many runs of one case (different b, different clearing times) share one
+vectorised integration: states have shape (2, N, R). Pure numpy: no ROS import.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from nni_battery_controller.law import ControllerParams
+from nni_plant_sim.integrators import advance
+from nni_plant_sim.network import Network, electrical_power
+
+ANGLE_REFERENCES = ("pmu", "coi")
+#: Band (rad) around its final value within which a COI-relative angle counts as settled.
+SETTLE_BAND_RAD = 0.02
+POLE_SLIP_RAD = math.pi
+
+
+def per_generator(value, n: int, name: str) -> np.ndarray:
+    """One value for every generator, or exactly n values; ValueError naming the option otherwise."""
+    values = np.atleast_1d(np.asarray(value, dtype=float))
+    if values.size == 1:
+        return np.full(n, float(values[0]))
+    if values.size != n:
+        raise ValueError(f"{name}: give one value or one per generator ({n}), got {values.size}")
+    return values
+
+
+@dataclass(frozen=True)
+class NetworkLaw:
+    """Gains of the H3-hat at each generator (pu of the machine's rating), each checked by ControllerParams.
+
+    ``K_i < L_i`` is checked per generator; a violation names the generator and the condition.
+    """
+
+    net: Network
+    tau_s: np.ndarray
+    gain_k: np.ndarray
+    gain_l: np.ndarray
+    alpha: np.ndarray
+    reference: str = "pmu"
+
+    def __post_init__(self) -> None:
+        if self.reference not in ANGLE_REFERENCES:
+            raise ValueError(f"angle reference must be one of {', '.join(ANGLE_REFERENCES)}, got {self.reference!r}")
+        for i, name in enumerate(self.net.names):
+            try:
+                ControllerParams(float(self.tau_s[i]), float(self.gain_k[i]), float(self.gain_l[i]),
+                                 float(self.alpha[i]))
+            except ValueError as error:
+                raise ValueError(f"generator {name}: {error}") from None
+
+    @classmethod
+    def uniform(cls, net: Network, tau_s, gain_k, gain_l, alpha, reference: str = "pmu") -> "NetworkLaw":
+        """From one value or one per generator of each gain."""
+        n = net.size
+        return cls(net, per_generator(tau_s, n, "tau"), per_generator(gain_k, n, "K"), per_generator(gain_l, n, "L"),
+                   per_generator(alpha, n, "alpha"), reference)
+
+    def angle_dev(self, delta_rad):
+        """The controllers' input d_i for angles of shape (N,) or (N, R)."""
+        column = (slice(None),) + (None,) * (np.ndim(delta_rad) - 1)
+        dev = delta_rad - self.net.delta_bar_rad[column]
+        if self.reference == "coi":
+            dev = dev - self.net.coi(dev)
+        return dev
+
+
+@dataclass
+class NetworkController:
+    """Sampled-data H3-hat at every generator for R runs at once: one call per PMU sample.
+
+    ``limits_pu`` (shape (N, R) or broadcastable) are the battery limits b_i on
+    the system base. The update is law.SampledController.step's, elementwise
+    (its float code is the SMIB's; tests check that both agree for N = 1).
+    """
+
+    law: NetworkLaw
+    period_s: float
+    limits_pu: np.ndarray
+    x3: np.ndarray
+
+    def __post_init__(self) -> None:
+        net = self.law.net
+        if not (math.isfinite(self.period_s) and self.period_s > 0):
+            raise ValueError(f"sampling period must be finite and positive, got {self.period_s}")
+        self._k = net.pu_of_machine(self.law.gain_k)[:, None]
+        self._l = net.pu_of_machine(self.law.gain_l)[:, None]
+        self._decay_unsaturated = np.exp(-self.period_s / self.law.tau_s)[:, None]
+        self._decay_saturated = np.exp(-self.law.alpha * self.period_s / self.law.gain_k)[:, None]
+
+    def step(self, delta_rad: np.ndarray, p_electrical_pu: np.ndarray):
+        """Answer one sample of angles and measured electrical powers, shape (N, R) each.
+
+        Returns ``(P_ST, w, saturated)`` (system base) and advances x3.
+        """
+        angle_dev = self.law.angle_dev(delta_rad)
+        restoring = self.law.net.p_mech_pu[:, None] - p_electrical_pu
+        w = self.x3 - self._l * angle_dev - restoring
+        saturated = np.abs(w) >= self.limits_pu
+        next_x3 = np.where(saturated, self._decay_saturated * self.x3,
+                           self._decay_unsaturated * self.x3 + (1.0 - self._decay_unsaturated) * self._k * angle_dev)
+        power = np.clip(w, -self.limits_pu, self.limits_pu)
+        bad = ~(np.isfinite(power) & np.isfinite(next_x3))
+        self.x3 = np.where(bad, 0.0, next_x3)
+        return np.where(bad, 0.0, power), w, saturated
+
+
+@dataclass(frozen=True)
+class NetworkTrajectory:
+    """Samples t_0..t_n of R runs of one network: angles, speeds (n+1, N, R); P_ST, w, saturated likewise."""
+
+    net: Network
+    t_s: np.ndarray
+    delta_rad: np.ndarray
+    speed_rad_s: np.ndarray
+    battery_power_pu: np.ndarray
+    w_pu: np.ndarray
+    saturated: np.ndarray
+    limits_pu: np.ndarray
+
+    def coi_angles(self) -> np.ndarray:
+        """Angles relative to the centre of inertia, (n+1, N, R)."""
+        weights = self.net.inertia_m / self.net.inertia_m.sum()
+        return self.delta_rad - np.einsum("i,tir->tr", weights, self.delta_rad)[:, None, :]
+
+
+def simulate_network(net: Network, law: NetworkLaw, scenario, limits_pu_mbase, duration_s: float, rate_hz: float,
+                     max_step_s: float = 1e-3, drop_lost_runs: bool = False) -> NetworkTrajectory:
+    """R runs of the sampled-data closed loop; run r has battery limits ``limits_pu_mbase[r]`` (pu machine base).
+
+    ``limits_pu_mbase`` is a sequence of R entries, each one value (every
+    generator) or N values; ``inf`` unsaturated, 0 no battery. A scenario with
+    an array of clearing times runs one clearing time per run (same R).
+    At each sample t_k every controller reads its angle and measured electrical
+    power, its battery power is held over [t_k, t_k+1), and the network is
+    integrated by :func:`nni_plant_sim.integrators.advance` (the plant node's RK4).
+
+    ``drop_lost_runs``: a run stops at the first sample where a pair of its
+    generators is more than 180 degrees apart (its later samples are NaN), so
+    that a batch of candidate clearing times spends nothing on decided runs.
+    """
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise ValueError(f"controller rate must be finite and positive, got {rate_hz}")
+    limits = np.column_stack([net.pu_of_machine(per_generator(b, net.size, "b")) for b in limits_pu_mbase])
+    if np.any(limits < 0) or np.any(np.isnan(limits)):
+        raise ValueError("battery limits must be >= 0")
+    runs = limits.shape[1]
+    period = 1.0 / rate_hz
+    n = int(round(duration_s * rate_hz))
+    t = np.arange(n + 1) * period
+    x = np.repeat(scenario.initial_state(net)[:, :, None], runs, axis=2)
+    controller = NetworkController(law, period, limits, np.zeros((net.size, runs)))
+    shape = (n + 1, net.size, runs)
+    delta, speed, power, w, saturated = (np.full(shape, np.nan) for _ in range(5))
+    active = np.arange(runs)
+    for k in range(n + 1):
+        measured = electrical_power(x[0], scenario.network(t[k], net)[1])
+        delta[k][:, active], speed[k][:, active] = x
+        step = controller.step(x[0], measured)
+        power[k][:, active], w[k][:, active], saturated[k][:, active] = step
+        if drop_lost_runs and np.any(lost := angle_spread(x[0][None])[0] > POLE_SLIP_RAD):
+            keep = ~lost
+            active, x, step = active[keep], x[:, :, keep], tuple(a[:, keep] for a in step)
+            controller = NetworkController(law, period, controller.limits_pu[:, keep], controller.x3[:, keep])
+            scenario = scenario.narrowed(keep)
+            if active.size == 0:
+                break
+        if k < n:
+            x = advance(t[k], t[k + 1], x, step[0], net, scenario, max_step_s)
+    return NetworkTrajectory(net, t, delta, speed, power, w, saturated == 1.0, limits)
+
+
+@dataclass(frozen=True)
+class GeneratorOutcome:
+    """One generator in one run. Powers in pu of its rating and in MW."""
+
+    name: str
+    in_synchronism: bool
+    settled: bool
+    settling_time_s: float | None
+    max_abs_battery_power_pu: float
+    max_abs_battery_power_mw: float
+    limit_pu: float
+    last_saturated_s: float | None
+
+
+@dataclass(frozen=True)
+class NetworkOutcome:
+    """One run: the system verdict and one :class:`GeneratorOutcome` per generator.
+
+    in_synchronism: no pair of generators ever more than 180 degrees apart
+    (sampled at the PMU instants); pole_slip_s: the first sample where a pair
+    was; settled: every generator's COI-relative angle within SETTLE_BAND_RAD of
+    its final value over the last second; stable: both. final_coi_frequency_hz:
+    the centre of inertia's frequency deviation at the end (without governors
+    nothing restores it; the COI reference does not see it).
+    """
+
+    in_synchronism: bool
+    pole_slip_s: float | None
+    settled: bool
+    stable: bool
+    max_angle_spread_rad: float
+    final_coi_frequency_hz: float
+    generators: tuple
+
+    def to_json(self) -> dict:
+        """JSON-ready dict (inf limits as "inf")."""
+        out = {k: v for k, v in self.__dict__.items() if k != "generators"}
+        out["generators"] = [
+            {**g.__dict__, "limit_pu": "inf" if math.isinf(g.limit_pu) else g.limit_pu} for g in self.generators]
+        return out
+
+
+def angle_spread(delta_rad: np.ndarray) -> np.ndarray:
+    """Largest pairwise angle difference max_i delta_i - min_i delta_i over generators (axis 1)."""
+    return delta_rad.max(axis=1) - delta_rad.min(axis=1)
+
+
+def assess_network(traj: NetworkTrajectory, settle_band_rad: float = SETTLE_BAND_RAD) -> list[NetworkOutcome]:
+    """Per run: synchronism (pairwise criterion), settling, battery peaks and the last saturated instant."""
+    net, t = traj.net, traj.t_s
+    spread = angle_spread(traj.delta_rad)
+    relative = traj.coi_angles()
+    off = np.abs(relative - relative[-1]) > settle_band_rad
+    last_second = t >= t[-1] - 1.0
+    outcomes = []
+    for r in range(traj.delta_rad.shape[2]):
+        slipped = np.flatnonzero(spread[:, r] > POLE_SLIP_RAD)
+        in_sync = slipped.size == 0
+        generators = []
+        for i, name in enumerate(net.names):
+            pairwise = np.abs(traj.delta_rad[:, i, r][:, None] - traj.delta_rad[:, :, r]).max()
+            outside = np.flatnonzero(off[:, i, r])
+            settled = bool(pairwise <= POLE_SLIP_RAD and not off[last_second, i, r].any())
+            settle_time = 0.0 if outside.size == 0 else (float(t[outside[-1] + 1]) if outside[-1] + 1 < t.size
+                                                         else None)
+            sat_times = t[traj.saturated[:, i, r]]
+            scale = net.base_mva / net.mbase_mva[i]
+            peak = float(np.max(np.abs(traj.battery_power_pu[:, i, r])))
+            generators.append(GeneratorOutcome(
+                name, bool(pairwise <= POLE_SLIP_RAD), settled, settle_time if settled else None, peak * scale,
+                peak * net.base_mva, float(traj.limits_pu[i, r] * scale),
+                float(sat_times.max()) if sat_times.size else None))
+        settled_all = all(g.settled for g in generators)
+        coi_speed = float(net.coi(traj.speed_rad_s[-1, :, r]))
+        outcomes.append(NetworkOutcome(in_sync, None if in_sync else float(t[slipped[0]]), settled_all,
+                                       in_sync and settled_all, float(spread[:, r].max()),
+                                       coi_speed / (2.0 * math.pi), tuple(generators)))
+    return outcomes
+
+
+def critical_clearing_times(net: Network, law: NetworkLaw, make_fault, limits_pu_mbase, duration_s: float,
+                            rate_hz: float, high_s: float = 1.0, resolution_s: float = 1e-3, points: int = 31,
+                            max_step_s: float = 1e-3):
+    """Critical clearing time per battery limit: the longest clearing time (on a ``resolution_s`` grid) that stays in synchronism.
+
+    ``make_fault(clearing_times)`` builds the fault for an array of clearing
+    times. All limits and ``points`` candidate clearing times per limit run in
+    one vectorised integration per round; each round narrows every bracket
+    [stable, unstable] to one of ``points + 1`` parts, down to ``resolution_s``.
+    The CCT is the first loss: a stable candidate beyond the shortest unstable
+    one found is ignored (stability need not be monotone in the clearing time:
+    with batteries it sometimes is not). Between candidates monotonicity is
+    assumed, as any bisection does: a finer search (``points``) can find an
+    earlier loss.
+    Returns per limit ``(cct_s or None, (stable_s, unstable_s), at_limit)``:
+    ``None`` when even the shortest clearing time loses synchronism;
+    ``at_limit`` when ``high_s`` still holds (the CCT is then at least high_s).
+    """
+    step = resolution_s
+    lo = np.zeros(len(limits_pu_mbase), dtype=int)                 # known stable (0: no fault at all)
+    hi = np.full(len(limits_pu_mbase), int(round(high_s / step)) + 1)  # known unstable (beyond the range)
+    while np.any(hi - lo > 1):
+        candidates, owners = [], []
+        for j in range(len(limits_pu_mbase)):
+            if hi[j] - lo[j] > 1:
+                grid = np.unique(np.linspace(lo[j], hi[j], points + 2).round().astype(int)[1:-1])
+                grid = grid[(grid > lo[j]) & (grid < hi[j])]
+                candidates.extend(grid)
+                owners.extend([j] * grid.size)
+        candidates, owners = np.array(candidates), np.array(owners)
+        traj = simulate_network(net, law, make_fault(candidates * step), [limits_pu_mbase[j] for j in owners],
+                                duration_s, rate_hz, max_step_s, drop_lost_runs=True)
+        stable = ~np.any(angle_spread(traj.delta_rad) > POLE_SLIP_RAD, axis=0)
+        for j in np.unique(owners):
+            mine = owners == j
+            good, bad = candidates[mine & stable], candidates[mine & ~stable]
+            hi[j] = min(hi[j], bad.min()) if bad.size else hi[j]
+            good = good[good < hi[j]]
+            lo[j] = max(lo[j], good.max()) if good.size else lo[j]
+    top = int(round(high_s / step))
+    return [(None if lo[j] == 0 else float(lo[j] * step), (float(lo[j] * step), float(hi[j] * step)), lo[j] >= top)
+            for j in range(len(limits_pu_mbase))]

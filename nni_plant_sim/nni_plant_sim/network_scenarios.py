@@ -1,0 +1,168 @@
+"""Disturbances of a network of generators: what the reduced network and the mechanical powers do over time.
+
+The network counterparts of :mod:`nni_plant_sim.scenarios`, with the same
+protocol for :func:`nni_plant_sim.integrators.advance`: ``initial_state(net)``
+(shape (2, N): angles and speed deviations), ``network(t_s, net)`` giving
+``(P_m vector pu, Coupling in force)`` and ``breakpoints()`` (the times it
+jumps), and ``narrowed(keep)`` for the runs ``keep`` of a batch. Times are
+seconds since the disturbance. Pure numpy: no ROS import.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from nni_plant_sim.network import Coupling, Network, Switched
+
+
+def _equilibrium(net: Network) -> np.ndarray:
+    return np.stack((net.delta_bar_rad, np.zeros(net.size)))
+
+
+@dataclass(frozen=True)
+class BusFault:
+    """Three-phase fault at ``bus`` through ``impedance_pu`` (system base), cleared at ``clearing_time_s``.
+
+    Clearing removes the fault and trips the branches ``trip`` (indices; none:
+    the pre-fault network returns). ``clearing_time_s`` may be an array of R
+    clearing times (one per run of a batch): the runs then share one
+    integration, each switching at its own instant. Starts from the pre-fault
+    equilibrium.
+    """
+
+    net: Network
+    bus: int
+    clearing_time_s: object = 0.1
+    impedance_pu: complex = 0.0
+    trip: tuple = ()
+    _during: Coupling = field(init=False, repr=False)
+    _after: Coupling = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        clearing = np.asarray(self.clearing_time_s, dtype=float)
+        if not (np.all(np.isfinite(clearing)) and np.all(clearing > 0)):
+            raise ValueError(f"clearing time must be finite and positive, got {self.clearing_time_s}")
+        if not math.isfinite(abs(self.impedance_pu)) or self.impedance_pu.real < 0:
+            raise ValueError(f"fault impedance must be finite with R >= 0, got {self.impedance_pu}")
+        object.__setattr__(self, "_during", self.net.faulted(self.bus, self.impedance_pu))
+        object.__setattr__(self, "_after", self.net.without(self.trip) if self.trip else self.net.coupling)
+
+    def initial_state(self, net: Network) -> np.ndarray:
+        """Pre-fault equilibrium."""
+        return _equilibrium(net)
+
+    def network(self, t_s: float, net: Network):
+        """Faulted network until clearing (per run for an array of clearing times), then the post-fault one.
+
+        Between the first and the last clearing time of a batch each run gets its own (:class:`Switched`).
+        """
+        clearing = np.asarray(self.clearing_time_s)
+        if t_s < clearing.min():
+            return net.p_mech_pu, self._during
+        if t_s >= clearing.max():
+            return net.p_mech_pu, self._after
+        return net.p_mech_pu, Switched(self._during, self._after, t_s < clearing)
+
+    def narrowed(self, keep) -> "BusFault":
+        """The same fault for the runs ``keep`` (boolean, shape (R,)) of a batch of clearing times."""
+        if np.ndim(self.clearing_time_s) == 0:
+            return self
+        return replace(self, clearing_time_s=np.asarray(self.clearing_time_s)[keep])
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """The clearing instant(s)."""
+        return tuple(float(t) for t in np.unique(np.asarray(self.clearing_time_s, dtype=float)))
+
+
+@dataclass(frozen=True)
+class LineTrip:
+    """The branches ``trip`` (indices) open at t = 0 without a fault; starts from the pre-fault equilibrium."""
+
+    net: Network
+    trip: tuple
+    _after: Coupling = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not self.trip:
+            raise ValueError("a line trip needs at least one branch to trip")
+        object.__setattr__(self, "_after", self.net.without(self.trip))
+
+    def initial_state(self, net: Network) -> np.ndarray:
+        """Pre-fault equilibrium."""
+        return _equilibrium(net)
+
+    def network(self, t_s: float, net: Network):
+        """The network without the tripped branches."""
+        return net.p_mech_pu, self._after
+
+    def narrowed(self, keep):
+        """The scenario for a subset of a batch's runs: itself (it does not differ between runs)."""
+        return self
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """None: the trip is at t = 0."""
+        return ()
+
+
+@dataclass(frozen=True)
+class MechanicalStep:
+    """Generator ``machine`` (index) runs at ``p_mech_pu`` (system base) for ``duration_s`` (inf: for good)."""
+
+    machine: int
+    p_mech_pu: float
+    duration_s: float = math.inf
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.p_mech_pu) and self.p_mech_pu >= 0):
+            raise ValueError(f"mechanical power during the step must be finite and >= 0, got {self.p_mech_pu}")
+        if not self.duration_s > 0:
+            raise ValueError(f"duration of the power step must be positive, got {self.duration_s}")
+
+    def initial_state(self, net: Network) -> np.ndarray:
+        """Pre-fault equilibrium."""
+        return _equilibrium(net)
+
+    def network(self, t_s: float, net: Network):
+        """Pre-fault network; the stepped machine's P_m until ``duration_s``."""
+        p_mech = net.p_mech_pu.copy()
+        if t_s < self.duration_s:
+            p_mech[self.machine] = self.p_mech_pu
+        return p_mech, net.coupling
+
+    def narrowed(self, keep):
+        """The scenario for a subset of a batch's runs: itself (it does not differ between runs)."""
+        return self
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """The end of the step, if it ends."""
+        return (self.duration_s,) if math.isfinite(self.duration_s) else ()
+
+
+@dataclass(frozen=True)
+class AngleDisplacement:
+    """Rotor angles start displaced by ``displacement_rad`` (shape (N,)) from equilibrium, network intact."""
+
+    displacement_rad: np.ndarray
+
+    def __post_init__(self) -> None:
+        if not np.all(np.isfinite(self.displacement_rad)):
+            raise ValueError("angle displacements must be finite")
+
+    def initial_state(self, net: Network) -> np.ndarray:
+        """Equilibrium plus the displacement, at rest."""
+        return np.stack((net.delta_bar_rad + self.displacement_rad, np.zeros(net.size)))
+
+    def network(self, t_s: float, net: Network):
+        """The pre-fault network and powers."""
+        return net.p_mech_pu, net.coupling
+
+    def narrowed(self, keep):
+        """The scenario for a subset of a batch's runs: itself (it does not differ between runs)."""
+        return self
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """None."""
+        return ()
