@@ -102,9 +102,10 @@ class Probe:
         self._handlers: dict[str, list] = {}
         self._publishers: dict[str, object] = {}
         self._lock = threading.Lock()
+        self._subscriptions = {}
         for topic in topics:
             msg_class, name, qos = contract.recorder_endpoint(topic)
-            self.node.create_subscription(msg_class, name, self._recorder(topic), qos)
+            self._subscriptions[topic] = self.node.create_subscription(msg_class, name, self._recorder(topic), qos)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._thread = threading.Thread(target=self._spin, daemon=True)
@@ -136,6 +137,10 @@ class Probe:
             self._publishers[topic] = self.node.create_publisher(*contract.endpoint(topic))
         return self._publishers[topic]
 
+    def advertise(self, topic) -> None:
+        """Make the publisher on ``topic`` now, so that the probe is a writer there before it first publishes."""
+        self._publisher(topic)
+
     def publish(self, topic, msg) -> None:
         """Publish on a contract topic with its QoS (the publisher is made on first use)."""
         self._publisher(topic).publish(msg)
@@ -154,6 +159,16 @@ class Probe:
         """A copy of what arrived on ``topic`` so far."""
         with self._lock:
             return list(self.messages[topic])
+
+    def wait_for_publishers(self, topic, count: int, timeout: float) -> bool:
+        """Wait until ``count`` publishers match this probe's subscription on ``topic``."""
+        subscription = self._subscriptions[topic]
+        deadline = time.monotonic() + timeout
+        while subscription.get_publisher_count() < count:
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.02)
+        return True
 
     def wait_for(self, topic, count: int, timeout: float) -> list:
         """Wait until ``count`` messages arrived on ``topic`` (or time out); return them."""

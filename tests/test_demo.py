@@ -26,6 +26,7 @@ from nni_battery_controller.demo import (
     run_metadata,
 )
 from nni_msgs_adapter import contract
+from nni_msgs_adapter.cli_support import CliError
 from nni_msgs_adapter.recording import read_generator_run
 from nni_msgs_adapter.rerun_bridge import PROGRESS_PREFIX
 from nni_msgs_adapter.rerun_view import run_paths
@@ -240,6 +241,7 @@ def test_rogue_commands_make_the_run_compromised(tmp_path):
             rogue.publish(contract.TOPIC_BATTERY_COMMAND, contract.command_message(stamp_ns + 1_000_000, 5.0))
 
     rogue.on_message(contract.TOPIC_BATTERY_COMMAND, follow)
+    rogue.advertise(contract.TOPIC_BATTERY_COMMAND)  # a writer on the battery's topic from the start
     try:
         result = run_demo(["--mode", "realtime", "--b", "0.3", "--duration", "2", "--out", str(tmp_path)], domain)
     finally:
@@ -250,15 +252,21 @@ def test_rogue_commands_make_the_run_compromised(tmp_path):
     assert len(result.stderr.strip().splitlines()) == 1 and "compromised" in result.stderr
     (run,) = json.loads((tmp_path / "summary.json").read_text())["scenarios"]
     reasons = run["compromised"]
-    assert reasons.get("max_abs_applied_power_pu", 0.0) > 0.3 or reasons.get("foreign_commands", 0) > 0
+    # The plant names the rogue (a second writer on battery/command) and applies none of its commands.
+    assert reasons.get("writer_alarms", 0) > 0 or reasons.get("foreign_commands", 0) > 0, reasons
+    assert run["max_abs_battery_power_pu"] <= 0.3
 
 
 def test_compromised_reasons():
     run = SimpleNamespace(battery_power_pu=np.array([0.0, 0.3, -0.3]))
-    assert compromised_reasons({}, run, 0.3) == {}
-    assert compromised_reasons({"foreign_commands": 2, "writer_alarms": 0}, run, 0.3) == {"foreign_commands": 2}
-    assert compromised_reasons({}, run, 0.2) == {"max_abs_applied_power_pu": 0.3}
-    assert compromised_reasons({"max_abs_applied_power_pu": 5.0}, run, 0.3) == {"max_abs_applied_power_pu": 5.0}
+    clean = {"foreign_commands": 0, "unsolicited_commands": 0, "writer_alarms": 0, "max_abs_applied_power_pu": 0.3}
+    assert compromised_reasons(clean, run, 0.3) == {}
+    assert compromised_reasons({**clean, "foreign_commands": 2}, run, 0.3) == {"foreign_commands": 2}
+    assert compromised_reasons(clean, run, 0.2) == {"max_abs_applied_power_pu": 0.3}
+    assert compromised_reasons({**clean, "max_abs_applied_power_pu": 5.0}, run, 0.3) == {"max_abs_applied_power_pu": 5.0}
+    # A plant that does not report its trust counters cannot be judged: never taken as clean.
+    with pytest.raises(CliError, match="writer_alarms"):
+        compromised_reasons({"foreign_commands": 0, "unsolicited_commands": 0}, run, 0.3)
 
 
 # --- names and metadata -------------------------------------------------------------------

@@ -30,6 +30,9 @@ def run_loop(tmp_path, mode: str, b: float, duration_s: float, rate_hz: float = 
     try:
         with node_processes(tmp_path, domain) as start:
             start("controller", CONTROLLER, {"battery_limit_pu": b, "sample_rate_hz": rate_hz})
+            # The plant waits for its pmu subscribers, not for the probe's match with the controller's
+            # publishers: under load that came after a lockstep run had ended (0 controller states).
+            assert probe.wait_for_publishers(contract.TOPIC_CONTROLLER_STATE, 1, 30.0), "no controller"
             plant = start("plant", PLANT, {"mode": mode, "duration_s": duration_s, "pmu_rate_hz": rate_hz,
                                            "wait_for_subscribers": 2})
             assert plant.wait(timeout=timeout_s) == 0, plant.output()

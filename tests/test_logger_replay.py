@@ -369,15 +369,15 @@ def test_replay_waits_for_a_subscriber_of_one_topic(wait):
 
 
 def plant_parameters() -> dict:
-    from nni_plant_sim.plant_node import DEFAULTS
+    from nni_msgs_adapter.defaults import plant_defaults
 
-    return dict(DEFAULTS, mode="lockstep", duration_s=10.0, wait_for_subscribers=2)
+    return dict(plant_defaults(), mode="lockstep", duration_s=10.0, wait_for_subscribers=2)
 
 
 def controller_parameters(b: float) -> dict:
-    from nni_battery_controller.controller_node import DEFAULTS
+    from nni_msgs_adapter.defaults import controller_defaults
 
-    return dict(DEFAULTS, battery_limit_pu=b)
+    return dict(controller_defaults(), battery_limit_pu=b)
 
 
 @pytest.fixture(scope="module")

@@ -199,9 +199,12 @@ def compromised_reasons(plant_summary: dict, run: GeneratorRun, b: float) -> dic
     The largest power applied is the plant's own count where it reports one, and
     in any case the largest ``plant/state`` battery power in the recording.
     """
-    reasons = {key: int(plant_summary[key]) for key in TRUST_COUNTERS if int(plant_summary.get(key, 0))}
+    missing = [key for key in (*TRUST_COUNTERS, "max_abs_applied_power_pu") if key not in plant_summary]
+    if missing:
+        raise CliError(f"the plant's final diagnostics lack {', '.join(missing)}: the run cannot be judged")
+    reasons = {key: int(plant_summary[key]) for key in TRUST_COUNTERS if int(plant_summary[key])}
     recorded = float(np.max(np.abs(run.battery_power_pu))) if run.battery_power_pu.size else 0.0
-    applied = max(recorded, float(plant_summary.get("max_abs_applied_power_pu", 0.0)))
+    applied = max(recorded, float(plant_summary["max_abs_applied_power_pu"]))
     if applied > b + 1e-12:
         reasons["max_abs_applied_power_pu"] = applied
     return reasons
