@@ -84,7 +84,6 @@ from nni_msgs_adapter.recording import (
 )
 
 PROG = "nni-replay"
-APP_ID = "nni_replay"
 #: Port of a Rerun viewer's gRPC server when a rerun+http URL names none (Rerun's default).
 DEFAULT_VIEWER_PORT = 9876
 #: Longest wait for a TCP connection to the viewer (--connect), s.
@@ -255,14 +254,12 @@ def convert(args) -> int:
     elif args.connect is not None:
         check_listening(args.connect)
     f0_hz = view_f0_hz(args, run_metadata(recording))
-    import rerun as rr
-
-    from nni_msgs_adapter.rerun_view import blueprint, open_recording
+    from nni_msgs_adapter.rerun_view import APP_ID, blueprint, open_recording, recording_stream
 
     layout = blueprint(phase_bounds=phase_bounds(runs))
     if args.rrd is not None:
         # In memory first, so that the .rrd appears whole or not at all (atomic rename).
-        stream = rr.RecordingStream(APP_ID)
+        stream = recording_stream()
         memory = stream.memory_recording()
         stream.send_blueprint(layout)
         log_recording(stream, runs, f0_hz)
@@ -274,7 +271,7 @@ def convert(args) -> int:
     # rerun_bindings raises RuntimeError for a viewer that cannot be reached or started.
     try:
         if args.connect is not None:
-            stream = rr.RecordingStream(APP_ID)
+            stream = recording_stream()
             stream.connect_grpc(args.connect)
             stream.send_blueprint(layout)
         else:
