@@ -586,3 +586,26 @@ def test_logger_rejects_run_metadata_that_is_not_a_json_object(tmp_path, text):
     assert_one_line_error(result, "mcap_logger")
     assert "run_metadata" in result.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_four_paper_replays_merged_show_four_runs(tmp_path):
+    """Issue 10: `rerun rrd merge` of the four replays showed one run. One recording with the four now."""
+    from rerun.chunk import RrdReader
+
+    paths = []
+    for name in ("paper_b0", "paper_b0.2", "paper_b0.3", "paper_binf"):
+        out = tmp_path / f"{name}.rrd"
+        result = subprocess.run([str(NNI_REPLAY), str(RECORDINGS / f"{name}.mcap"), "--rrd", str(out)],
+                                capture_output=True, text=True, timeout=120)
+        assert result.returncode == 0, result.stderr
+        paths.append(out)
+    merged = tmp_path / "merged.rrd"
+    rerun_cli = Path(sys.executable).parent / "rerun"
+    result = subprocess.run([str(rerun_cli), "rrd", "merge", *map(str, paths), "-o", str(merged)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    reader = RrdReader(merged)
+    assert len(reader.recordings()) == 1
+    entities = {chunk.entity_path for chunk in reader.stream()}
+    # Entity paths escape '=': the angle deviation of each run, one series per b in the same view.
+    assert {f"/angle_deviation/b\\={b}" for b in ("0", "0.2", "0.3", "inf")} <= entities, sorted(entities)
