@@ -82,6 +82,16 @@ def node_processes(tmp_path: Path, domain_id: int):
             proc.interrupt(timeout=5.0)
 
 
+def wait_until(predicate, timeout: float, step: float = 0.02) -> bool:
+    """Poll ``predicate`` until it holds or ``timeout`` s pass; its last value."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(step)
+    return predicate()
+
+
 class Probe:
     """An rclpy node in the test process that records topics of the contract.
 
@@ -148,12 +158,7 @@ class Probe:
     def wait_matched(self, topic, count: int, timeout: float) -> bool:
         """Wait until ``count`` subscriptions match this probe's publisher on ``topic``."""
         publisher = self._publisher(topic)
-        deadline = time.monotonic() + timeout
-        while publisher.get_subscription_count() < count:
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(0.02)
-        return True
+        return wait_until(lambda: publisher.get_subscription_count() >= count, timeout)
 
     def take(self, topic) -> list:
         """A copy of what arrived on ``topic`` so far."""
@@ -163,18 +168,11 @@ class Probe:
     def wait_for_publishers(self, topic, count: int, timeout: float) -> bool:
         """Wait until ``count`` publishers match this probe's subscription on ``topic``."""
         subscription = self._subscriptions[topic]
-        deadline = time.monotonic() + timeout
-        while subscription.get_publisher_count() < count:
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(0.02)
-        return True
+        return wait_until(lambda: subscription.get_publisher_count() >= count, timeout)
 
     def wait_for(self, topic, count: int, timeout: float) -> list:
         """Wait until ``count`` messages arrived on ``topic`` (or time out); return them."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline and len(self.take(topic)) < count:
-            time.sleep(0.02)
+        wait_until(lambda: len(self.take(topic)) >= count, timeout)
         return self.take(topic)
 
     def close(self):

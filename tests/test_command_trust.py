@@ -20,7 +20,7 @@ import pytest
 from nni_msgs_adapter import contract
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
-from rosproc import Probe, fresh_domain_id, node_processes
+from rosproc import Probe, fresh_domain_id, node_processes, wait_until
 from test_node_parameters import _call, parameter_client
 
 pytestmark = pytest.mark.ros
@@ -70,15 +70,6 @@ def summary_of(plant) -> dict:
 
 def applied_powers(probe) -> list[float]:
     return [contract.plant_state_from_message(m)[3] for m in probe.take(contract.TOPIC_PLANT_STATE)]
-
-
-def wait_until(predicate, timeout: float, step: float = 0.02) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(step)
-    return predicate()
 
 
 def plant_errors(probe) -> list[str]:

@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from nni_battery_controller.law import ControllerParams, SampledController
 from nni_msgs_adapter import contract
 from nni_plant_sim.model import SmibParams
-from rosproc import Probe, fresh_domain_id, node_processes
+from rosproc import Probe, fresh_domain_id, node_processes, wait_until
 
 pytestmark = pytest.mark.ros
 
@@ -225,15 +225,6 @@ def plant_diagnostics(probe):
         if values is not None:
             return values
     return {}
-
-
-def wait_until(predicate, timeout: float, step: float = 0.05) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(step)
-    return predicate()
 
 
 def test_killed_controller_times_out_to_zero_and_a_restart_recovers(tmp_path):
