@@ -33,7 +33,7 @@ from pathlib import Path
 
 import pytest
 
-from nni_battery_controller.demo import node_command
+from nni_msgs_adapter.processes import node_command
 from nni_msgs_adapter import contract
 from nni_msgs_adapter.mcap_io import deserialize, read_messages
 from nni_msgs_adapter.node_main import FASTDDS_PROFILES_ENV, NETWORK_ENV, network_profile
