@@ -1,0 +1,127 @@
+"""The Kundur network in lockstep over real DDS: one plant process, one controller process per generator (issue 14).
+
+The network plant node integrates the four machines; each controller node runs
+in its generator's namespace with g measured (restoring_power measured). The
+recorded trajectory must be the offline sampled-data network simulation's.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from nni_battery_controller.network_sim import NetworkLaw, simulate_network
+from nni_msgs_adapter import contract
+from nni_plant_sim.cases import load_network
+from nni_plant_sim.network_plant_node import SUMMARY_PREFIX
+from nni_plant_sim.network_scenarios import BusFault
+from rosproc import Probe, fresh_domain_id, node_processes
+
+pytestmark = pytest.mark.ros
+
+PLANT = "nni_plant_sim.network_plant_node"
+CONTROLLER = "nni_battery_controller.controller_node"
+RATE_HZ, DURATION_S = 50.0, 4.0
+FAULT = {"case": "kundur_two_area", "fault_bus": 7, "clearing_time": 0.1, "trip_line": "7 8"}
+
+
+@pytest.fixture(scope="module")
+def kundur():
+    return load_network("kundur_two_area")
+
+
+def controller_parameters(net, i: int, b: float) -> dict:
+    """Generator i's controller: g measured, its pre-fault angle and power (pu of its rating), the default gains."""
+    scale = float(net.mbase_mva[i] / net.base_mva)
+    return {"restoring_power": "measured", "reference_angle_rad": float(net.delta_bar_rad[i]),
+            "p_mech_pu": float(net.p_mech_pu[i]) / scale, "battery_limit_pu": b, "sample_rate_hz": RATE_HZ}
+
+
+def summary(plant) -> dict:
+    line = next(line for line in plant.output().splitlines() if line.startswith(SUMMARY_PREFIX))
+    return json.loads(line[len(SUMMARY_PREFIX):])
+
+
+def run_network(tmp_path, net, b: float, answering=None, plant_extra=None):
+    """Plant + a controller in each generator's namespace (those in ``answering``, default all); the probes' states."""
+    domain = fresh_domain_id()
+    namespaces = [f"gen{i + 1}" for i in range(net.size)]
+    probes = [Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_PMU), namespace=ns) for ns in namespaces]
+    silent = []
+    try:
+        with node_processes(tmp_path, domain) as start:
+            for i, ns in enumerate(namespaces):
+                if answering is None or i in answering:
+                    start(f"controller_{ns}", CONTROLLER, controller_parameters(net, i, b), ("-r", f"__ns:=/{ns}"))
+                else:  # a controller that reads the PMU and never answers: the plant pairs with it, times out
+                    silent.append(Probe(domain, (contract.TOPIC_PMU,), namespace=ns, node_name="silent_controller"))
+                    silent[-1].wait_matched(contract.TOPIC_BATTERY_COMMAND, 0, 0.0)  # makes its writer
+            plant = start("plant", PLANT, {**FAULT, "duration_s": DURATION_S, "pmu_rate_hz": RATE_HZ,
+                                           "wait_for_subscribers": 2, **(plant_extra or {})})
+            assert plant.wait(timeout=120.0) == 0, plant.output()
+            n = int(DURATION_S * RATE_HZ) + 1
+            states = [probe.wait_for(contract.TOPIC_PLANT_STATE, n, 5.0) for probe in probes]
+            return [np.array([(s * 1e-9, d, w, p) for s, d, w, p in map(contract.plant_state_from_message, rows)])
+                    for rows in states], summary(plant)
+    finally:
+        for probe in probes + silent:
+            probe.close()
+
+
+@pytest.mark.parametrize("b", [0.1, 0.0], ids=["batteries_0.1pu", "no_batteries"])
+def test_kundur_lockstep_with_four_controller_processes_equals_the_offline_network_simulation(tmp_path, kundur, b):
+    """Bus 7 fault cleared at 0.1 s by tripping 7-8; every generator's recorded state against network_sim's.
+
+    Tolerance 1e-12 absolute (angles ~1 rad, speeds ~1 rad/s, as the SMIB's
+    lockstep test): the same advance() and the same law.sampled_step as
+    offline, float64 carried exactly by CDR; the one difference is the base of
+    the powers on the wire (pu of each machine's rating, as for a SMIB, against
+    the system base offline): P_E is divided by mbase/base at the plant and the
+    command multiplied back, a rounding of an ulp now and then that the
+    dynamics carry along (measured over 4 s: 4.4e-16 rad, 2.7e-15 rad/s,
+    4.7e-16 pu with batteries; bit for bit without).
+    """
+    recorded, plant_summary = run_network(tmp_path, kundur, b)
+    law = NetworkLaw.uniform(kundur, 0.1, 1.0, 1.1, 1.0)
+    fault = BusFault(kundur, 7, 0.1, trip=(kundur.bus_model.branch_index(7, 8),))
+    offline = simulate_network(kundur, law, fault, [b], DURATION_S, RATE_HZ)
+    scale = kundur.mbase_mva / kundur.base_mva
+    if b > 0:
+        assert offline.saturated[:-1].any() and not offline.saturated[:-1].all()  # both modes are exercised
+    for i, states in enumerate(recorded):
+        assert states.shape[0] == offline.t_s.size, f"gen{i + 1}: one plant state per sample, t_0 .. t_n"
+        np.testing.assert_allclose(states[:, 0], offline.t_s, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(states[:, 1], offline.delta_rad[:, i, 0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(states[:, 2], offline.speed_rad_s[:, i, 0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(states[:-1, 3], offline.battery_power_pu[:-1, i, 0] / scale[i], rtol=0, atol=1e-12)
+    for ns, values in plant_summary.items():
+        assert values["deadline_misses"] == 0 and values["samples"] == offline.t_s.size - 1, (ns, values)
+        assert values["foreign_commands"] == 0 and values["paired_controller"].endswith(f"/{ns}/controller"), values
+
+
+def test_a_generator_whose_controller_never_answers_times_out_alone_and_the_run_ends(tmp_path, kundur):
+    """gen4's only writer never answers: each of its samples times out (counted for gen4 only), zero power there.
+    """
+    recorded, plant_summary = run_network(tmp_path, kundur, 0.1, answering=(0, 1, 2),
+                                          plant_extra={"lockstep_timeout_s": 0.05})
+    samples = int(DURATION_S * RATE_HZ)
+    assert plant_summary["gen4"]["deadline_misses"] == samples
+    assert [plant_summary[f"gen{i}"]["deadline_misses"] for i in (1, 2, 3)] == [0, 0, 0]
+    assert np.all(recorded[3][:, 3] == 0.0) and np.any(recorded[0][:, 3] != 0.0)
+
+
+@pytest.mark.parametrize("params, expected", [
+    ({"mode": "realtime"}, "mode realtime is not built for the network plant yet (lockstep only)"),
+    ({"trip_line": "7 to 8"}, "trip_line takes 'FROM TO [CIRCUIT]', got '7 to 8'"),
+    ({"scenario": "line_trip", "trip_line": "7 8", "clearing_time": 0.2},
+     "not for scenario line_trip: clearing_time (bus_fault only)"),
+    ({"scenario": "line_trip"}, "scenario line_trip needs trip_line"),
+])
+def test_a_network_plant_parameter_that_cannot_work_is_refused_with_one_line(tmp_path, params, expected):
+    domain = fresh_domain_id()
+    with node_processes(tmp_path, domain) as start:
+        plant = start("plant", PLANT, params)
+        assert plant.wait(timeout=60.0) == 2
+        assert plant.output().strip() == f"network_plant_node: error: {expected}"
