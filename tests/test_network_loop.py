@@ -7,6 +7,7 @@ recorded trajectory must be the offline sampled-data network simulation's.
 
 from __future__ import annotations
 
+import contextlib
 import json
 
 import numpy as np
@@ -17,7 +18,7 @@ from nni_msgs_adapter import contract
 from nni_plant_sim.cases import load_network
 from nni_plant_sim.network_plant_node import SUMMARY_PREFIX
 from nni_plant_sim.network_scenarios import BusFault
-from rosproc import Probe, fresh_domain_id, node_processes
+from rosproc import Probe, busy_processes, fresh_domain_id, node_processes
 
 pytestmark = pytest.mark.ros
 
@@ -70,9 +71,12 @@ def run_network(tmp_path, net, b: float, answering=None, plant_extra=None):
             probe.close()
 
 
-@pytest.mark.parametrize("b", [0.1, 0.0], ids=["batteries_0.1pu", "no_batteries"])
-def test_kundur_lockstep_with_four_controller_processes_equals_the_offline_network_simulation(tmp_path, kundur, b):
+@pytest.mark.parametrize("b, busy", [(0.1, True), (0.0, False)], ids=["batteries_0.1pu_busy", "no_batteries"])
+def test_kundur_lockstep_with_four_controller_processes_equals_the_offline_network_simulation(tmp_path, kundur, b,
+                                                                                               busy):
     """Bus 7 fault cleared at 0.1 s by tripping 7-8; every generator's recorded state against network_sim's.
+
+    The run with batteries has two busy processes beside it (discovery and the handshake under load).
 
     Tolerance 1e-12 absolute (angles ~1 rad, speeds ~1 rad/s, as the SMIB's
     lockstep test): the same advance() and the same law.sampled_step as
@@ -83,7 +87,8 @@ def test_kundur_lockstep_with_four_controller_processes_equals_the_offline_netwo
     dynamics carry along (measured over 4 s: 4.4e-16 rad, 2.7e-15 rad/s,
     4.7e-16 pu with batteries; bit for bit without).
     """
-    recorded, plant_summary = run_network(tmp_path, kundur, b)
+    with busy_processes(2) if busy else contextlib.nullcontext():
+        recorded, plant_summary = run_network(tmp_path, kundur, b)
     law = NetworkLaw.uniform(kundur, 0.1, 1.0, 1.1, 1.0)
     fault = BusFault(kundur, 7, 0.1, trip=(kundur.bus_model.branch_index(7, 8),))
     offline = simulate_network(kundur, law, fault, [b], DURATION_S, RATE_HZ)
@@ -125,3 +130,29 @@ def test_a_network_plant_parameter_that_cannot_work_is_refused_with_one_line(tmp
         plant = start("plant", PLANT, params)
         assert plant.wait(timeout=60.0) == 2
         assert plant.output().strip() == f"network_plant_node: error: {expected}"
+
+
+def test_runtime_changes_are_rejected_with_their_reason(tmp_path):
+    """The network plant reads every parameter at start; a controller refuses reference_angle_rad in model mode."""
+    from rclpy.parameter import Parameter
+    from test_node_parameters import _call, parameter_client
+
+    domain = fresh_domain_id()
+    with node_processes(tmp_path, domain) as start:
+        start("plant", PLANT, {"wait_for_subscribers": 1})
+        start("controller", CONTROLLER, {}, ("-r", "__ns:=/gen1"))
+        plant, close_plant = parameter_client(domain, "network_plant")
+        controller, close_controller = parameter_client(domain, "/gen1/controller")
+        try:
+            assert plant.wait_for_services(timeout_sec=20.0) and controller.wait_for_services(timeout_sec=20.0)
+            bus = _call(plant.set_parameters([Parameter("fault_bus", value=8)])).results[0]
+            assert not bus.successful and bus.reason == "fault_bus cannot change once the node is up (read at start)"
+            assert _call(plant.get_parameters(["fault_bus"])).values[0].integer_value == 7
+            angle = _call(controller.set_parameters([Parameter("reference_angle_rad", value=0.3)])).results[0]
+            assert not angle.successful and "applies to restoring_power measured only" in angle.reason
+            both = _call(controller.set_parameters_atomically([Parameter("restoring_power", value="measured"),
+                                                               Parameter("reference_angle_rad", value=0.3)]))
+            assert both.result.successful, both.result.reason  # before a run: measured mode with its angle
+        finally:
+            close_plant()
+            close_controller()

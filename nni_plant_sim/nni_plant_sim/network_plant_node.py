@@ -33,7 +33,7 @@ from rosgraph_msgs.msg import Clock
 
 from nni_msgs_adapter import contract
 from nni_msgs_adapter.node_main import run_node
-from nni_msgs_adapter.ros_params import Spec, check_choices, current_values, declare
+from nni_msgs_adapter.ros_params import Spec, check_choices, current_values, declare, install_validation, locked_changes
 from nni_plant_sim.cases import CASES, load_network
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.network import electrical_power
@@ -122,6 +122,10 @@ class NetworkPlantNode(Node):
         self._wait = SubscriberWait(values["wait_for_subscribers"], values["discovery_settle_s"],
                                     values["wait_timeout_s"], self._now_ns())
         self.get_logger().info(", ".join(f"/{ns}: {name}" for ns, name in zip(self.namespaces, self._net.names)))
+        # Everything is read at start (the case, its namespaces, the physics): a later change is rejected, not ignored.
+        install_validation(self, PARAMETERS, lambda proposed: locked_changes(
+            self._values, proposed, [spec.name for spec in PARAMETERS], "once the node is up (read at start)"),
+            lambda prepared: None)
         self._start_timer = self.create_timer(0.01, self._try_start)
         self._run_timers = [self.create_timer(1.0, self._publish_diagnostics)]
 
