@@ -13,7 +13,7 @@ import json
 import numpy as np
 import pytest
 
-from nni_battery_controller.network_sim import NetworkLaw, simulate_network
+from nni_battery_controller.network_sim import NetworkLaw, NetworkTrajectory, assess_network, simulate_network
 from nni_msgs_adapter import contract
 from nni_plant_sim.cases import load_network
 from nni_plant_sim.network_plant_node import SUMMARY_PREFIX
@@ -59,10 +59,11 @@ def run_network(tmp_path, net, b: float, answering=None, plant_extra=None):
                 else:  # a controller that reads the PMU and never answers: the plant pairs with it, times out
                     silent.append(Probe(domain, (contract.TOPIC_PMU,), namespace=ns, node_name="silent_controller"))
                     silent[-1].wait_matched(contract.TOPIC_BATTERY_COMMAND, 0, 0.0)  # makes its writer
-            plant = start("plant", PLANT, {**FAULT, "duration_s": DURATION_S, "pmu_rate_hz": RATE_HZ,
-                                           "wait_for_subscribers": 2, **(plant_extra or {})})
+            params = {**FAULT, "duration_s": DURATION_S, "pmu_rate_hz": RATE_HZ, "wait_for_subscribers": 2,
+                      **(plant_extra or {})}
+            plant = start("plant", PLANT, params)
             assert plant.wait(timeout=120.0) == 0, plant.output()
-            n = int(DURATION_S * RATE_HZ) + 1
+            n = int(params["duration_s"] * RATE_HZ) + 1  # realtime may skip a late instant: then the wait times out
             states = [probe.wait_for(contract.TOPIC_PLANT_STATE, n, 5.0) for probe in probes]
             return [np.array([(s * 1e-9, d, w, p) for s, d, w, p in map(contract.plant_state_from_message, rows)])
                     for rows in states], summary(plant)
@@ -118,7 +119,7 @@ def test_a_generator_whose_controller_never_answers_times_out_alone_and_the_run_
 
 
 @pytest.mark.parametrize("params, expected", [
-    ({"mode": "realtime"}, "mode realtime is not built for the network plant yet (lockstep only)"),
+    ({"fault_bus": 99}, "bus 99 is not in the case (buses 1..11)"),
     ({"trip_line": "7 to 8"}, "trip_line takes 'FROM TO [CIRCUIT]', got '7 to 8'"),
     ({"scenario": "line_trip", "trip_line": "7 8", "clearing_time": 0.2},
      "not for scenario line_trip: clearing_time (bus_fault only)"),
@@ -156,3 +157,37 @@ def test_runtime_changes_are_rejected_with_their_reason(tmp_path):
         finally:
             close_plant()
             close_controller()
+
+
+@pytest.mark.parametrize("clearing_s", [0.1, 0.2])
+def test_kundur_realtime_with_four_controller_processes_gives_the_offline_verdict(tmp_path, kundur, clearing_s):
+    """Realtime at 50 frames/s, b = 0.1 pu: in synchronism (cleared at 0.1 s) or not (0.2 s) as network_sim says.
+
+    In realtime a command acts from its arrival (about a millisecond after its
+    measurement's instant), not from the instant: the trajectories differ a
+    little, the verdict must not; a loss of synchronism is found within 0.1 s
+    of the offline one.
+    """
+    duration = 3.0
+    recorded, plant_summary = run_network(tmp_path, kundur, 0.1, plant_extra={
+        "mode": "realtime", "clearing_time": clearing_s, "duration_s": duration})
+    law = NetworkLaw.uniform(kundur, 0.1, 1.0, 1.1, 1.0)
+    fault = BusFault(kundur, 7, clearing_s, trip=(kundur.bus_model.branch_index(7, 8),))
+    offline = assess_network(simulate_network(kundur, law, fault, [0.1], duration, RATE_HZ))[0]
+    stamps = [states[:, 0] for states in recorded]
+    assert all(np.array_equal(s, stamps[0]) for s in stamps), "every generator reports at the same instants"
+    t = stamps[0] - stamps[0][0]
+    shape = (t.size, kundur.size, 1)
+    delta = np.stack([states[:, 1] for states in recorded], axis=1)[:, :, None]
+    speed = np.stack([states[:, 2] for states in recorded], axis=1)[:, :, None]
+    power = np.stack([states[:, 3] for states in recorded], axis=1)[:, :, None]  # pu of each machine's rating
+    system_base = power * (kundur.mbase_mva / kundur.base_mva)[None, :, None]
+    limits = kundur.pu_of_machine(np.full(kundur.size, 0.1))[:, None]
+    realtime = assess_network(NetworkTrajectory(kundur, t, delta, speed, system_base, np.zeros(shape),
+                                                np.zeros(shape, bool), limits))[0]
+    assert realtime.in_synchronism == offline.in_synchronism == (clearing_s < 0.15)
+    assert [g.in_synchronism for g in realtime.generators] == [g.in_synchronism for g in offline.generators]
+    if not offline.in_synchronism:
+        assert abs(realtime.pole_slip_s - offline.pole_slip_s) <= 0.1
+    assert np.all(np.abs(power) <= 0.1 + 1e-12)  # |P_ST,i| <= b_i at every reported instant
+    assert all(values["mode"] == "realtime" and values["measurements"] > 0 for values in plant_summary.values())

@@ -11,10 +11,12 @@ plant's message contract there: ``/gen<i>/pmu``, ``/gen<i>/plant/state``,
 pu of the machine's rating, so one generator's topics look like a SMIB's;
 angles are the case's (the slack's reference at the load flow).
 
-A sample advances only when every generator's controller has answered it;
-each missing answer times out after ``lockstep_timeout_s`` (zero power for
-that generator, counted in its ``deadline_misses``). Realtime is not built
-yet: ``mode`` realtime is refused. Scenarios: ``bus_fault`` and ``line_trip``
+Lockstep: a sample advances only when every generator's controller has
+answered it; each missing answer times out after ``lockstep_timeout_s`` (zero
+power for that generator, counted in its ``deadline_misses``). Realtime
+(:class:`.reporting.RealtimeReporter`): the PMU grid on the wall clock as for
+the SMIB, each generator's command in force from its arrival, one older than
+``command_timeout_s`` decays to zero. Scenarios: ``bus_fault`` and ``line_trip``
 (the offline ``nni-simulate --case`` option names as parameters), starting
 at t = 0 from the pre-fault equilibrium. No PMU noise.
 """
@@ -38,14 +40,14 @@ from nni_plant_sim.cases import CASES, load_network
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.network import electrical_power
 from nni_plant_sim.network_scenarios import BusFault, LineTrip
-from nni_plant_sim.reporting import CommandChannel, LockstepStepper, SubscriberWait
+from nni_plant_sim.reporting import CommandChannel, LockstepStepper, RealtimeReporter, SubscriberWait
 
 #: Prefix of the JSON line with every generator's final diagnostics values, printed at exit.
 SUMMARY_PREFIX = "network_plant_node summary: "
 
 PARAMETERS = (
     Spec("case", "kundur_two_area", "Shipped test system.", choices=tuple(CASES)),
-    Spec("mode", "lockstep", "Time mode: lockstep (simulated /clock); realtime is not built for networks yet.",
+    Spec("mode", "lockstep", "Time mode: lockstep (simulated /clock) or realtime (wall clock).",
          choices=("lockstep", "realtime")),
     Spec("scenario", "bus_fault", "Disturbance at t = 0.", choices=("bus_fault", "line_trip")),
     Spec("fault_bus", 7, "bus_fault: the faulted bus (case numbering).", 1, 100000),
@@ -59,6 +61,8 @@ PARAMETERS = (
     Spec("duration_s", 10.0, "Simulated seconds to run, then exit.", 1e-3, 1e9),
     Spec("battery_rating_pu", 1.0, "Battery inverter rating at each generator, pu of its machine rating: commands are "
          "clipped to +-rating.", 0.0, 1e3),
+    Spec("command_timeout_s", 0.1, "realtime: a battery command older than this (from its measurement's instant) is "
+         "dropped, and the one in force decays to zero, s.", 1e-3, 100.0),
     Spec("lockstep_timeout_s", 1.0, "Wall time to wait for a generator's command before applying zero, s.", 1e-3, 100.0),
     Spec("wait_for_subscribers", 1, "Start when every generator's pmu has this many subscribers and its "
          "battery/command a publisher.", 1, 100),
@@ -99,8 +103,7 @@ class NetworkPlantNode(Node):
         declare(self, PARAMETERS)
         values = self._values = current_values(self, PARAMETERS)
         check_choices(values, PARAMETERS)
-        if values["mode"] != "lockstep":
-            raise ValueError("mode realtime is not built for the network plant yet (lockstep only)")
+        self._lockstep = values["mode"] == "lockstep"
         self._net = load_network(values["case"])
         self._scenario = scenario_from(self._net, values)
         self._scale = self._net.mbase_mva / self._net.base_mva  # pu of machine rating -> pu of the system base
@@ -108,7 +111,7 @@ class NetworkPlantNode(Node):
         self._period_s = 1.0 / values["pmu_rate_hz"]
         self.done, self._loop, self._t0_ns, self._gave_up = Future(), None, None, False
         self._writer_counts = [-1] * self._net.size
-        self._channels = [CommandChannel(values["battery_rating_pu"], round(values["lockstep_timeout_s"] * 1e9))
+        self._channels = [CommandChannel(values["battery_rating_pu"], round(values["command_timeout_s"] * 1e9))
                           for _ in self.namespaces]
         self._pmu_pubs, self._state_pubs, self._command_subs = [], [], []
         for i, ns in enumerate(self.namespaces):
@@ -118,7 +121,7 @@ class NetworkPlantNode(Node):
             self._command_subs.append(self.create_subscription(
                 msg_class, f"/{ns}/{topic}", lambda msg, index=i: self._on_command(index, msg), qos))
         self._diag_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_DIAGNOSTICS))
-        self._clock_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_CLOCK))
+        self._clock_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_CLOCK)) if self._lockstep else None
         self._wait = SubscriberWait(values["wait_for_subscribers"], values["discovery_settle_s"],
                                     values["wait_timeout_s"], self._now_ns())
         self.get_logger().info(", ".join(f"/{ns}: {name}" for ns, name in zip(self.namespaces, self._net.names)))
@@ -156,21 +159,26 @@ class NetworkPlantNode(Node):
             return self.done.set_result(True) if self._gave_up else None
         self._start_timer.cancel()
         values = self._values
-        self.get_logger().info(f"started in lockstep mode at {values['pmu_rate_hz']:g} frames/s, "
+        self.get_logger().info(f"started in {values['mode']} mode at {values['pmu_rate_hz']:g} frames/s, "
                                f"{self._net.size} generators")
         self._check_writers()
         # The state carries one run (shape (2, N, 1)), as the offline network simulation's batch of runs does.
         state = self._scenario.initial_state(self._net)[:, :, None]
-        self._loop = LockstepStepper(self._integrate, state, self._channels, values["duration_s"], self._period_s,
-                                     values["lockstep_timeout_s"])
-        self._run_timers.append(self.create_timer(min(0.05, values["lockstep_timeout_s"] / 4), self._on_timer))
-        self._t0_ns = self._now_ns()
+        timer = self.create_timer(min(0.05, values["lockstep_timeout_s"] / 4) if self._lockstep else self._period_s,
+                                  self._on_timer)
+        self._run_timers.append(timer)
+        # Realtime, the reporting grid is the timer's own (its whole-ns period and phase), as in the SMIB plant.
+        self._t0_ns = self._now_ns() + (0 if self._lockstep else timer.time_until_next_call() - timer.timer_period_ns)
+        self._loop = (LockstepStepper(self._integrate, state, self._channels, values["duration_s"], self._period_s,
+                                      values["lockstep_timeout_s"]) if self._lockstep
+                      else RealtimeReporter(self._integrate, state, self._channels, values["duration_s"], self._t0_ns,
+                                            timer.timer_period_ns, values["command_timeout_s"]))
         self._publish(self._loop.start(self._now_ns()))
 
     # --- publishing ----------------------------------------------------------------------
 
     def _publish(self, output) -> None:
-        """Every generator's measurement, then /clock, then the true states."""
+        """Every generator's measurement (lockstep: then /clock), then the true states."""
         if output is None:
             return
         sample = output.measurement
@@ -180,8 +188,9 @@ class NetworkPlantNode(Node):
             for i, pub in enumerate(self._pmu_pubs):
                 pub.publish(contract.pmu_message(sample.stamp_ns, float(x[0, i, 0]), float(x[1, i, 0]),
                                                  float(measured[i])))
-            self._loop.sent(self._now_ns())
-            self._clock_pub.publish(Clock(clock=contract.time_from_ns(sample.stamp_ns)))
+            if self._lockstep:
+                self._loop.sent(self._now_ns())
+                self._clock_pub.publish(Clock(clock=contract.time_from_ns(sample.stamp_ns)))
         for report in output.states:
             x = report.state
             for i, pub in enumerate(self._state_pubs):
@@ -196,7 +205,7 @@ class NetworkPlantNode(Node):
     # --- timers and commands -------------------------------------------------------------
 
     def _on_timer(self) -> None:
-        """The watchdog of the handshake: a silent generator's controller gets zero at the timeout."""
+        """Realtime: the reporting tick; lockstep: the watchdog of the handshake (zero for the silent at the timeout)."""
         self._check_writers()
         self._publish(self._loop.on_timer(self._now_ns()))
 
@@ -234,7 +243,7 @@ class NetworkPlantNode(Node):
 
     def _generator_values(self) -> list[dict]:
         """Per generator: the run's time and samples, its channel's counters and the power in force."""
-        run = {"mode": "lockstep", "sim_time_s": 0.0, "samples": 0}
+        run = {"mode": self._values["mode"], "sim_time_s": 0.0, "samples": 0}
         if self._loop is not None:
             run.update(sim_time_s=self._loop.t_s, samples=self._loop.sample)
         return [{**run, "machine": name, "battery_power_pu": channel.power_pu, **channel.summary()}
