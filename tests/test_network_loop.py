@@ -166,11 +166,12 @@ def test_kundur_realtime_with_four_controller_processes_gives_the_offline_verdic
     In realtime a command acts from its arrival (about a millisecond after its
     measurement's instant), not from the instant: the trajectories differ a
     little, the verdict must not; a loss of synchronism is found within 0.1 s
-    of the offline one.
+    of the offline one. Two busy processes run beside it.
     """
     duration = 3.0
-    recorded, plant_summary = run_network(tmp_path, kundur, 0.1, plant_extra={
-        "mode": "realtime", "clearing_time": clearing_s, "duration_s": duration})
+    with busy_processes(2):
+        recorded, plant_summary = run_network(tmp_path, kundur, 0.1, plant_extra={
+            "mode": "realtime", "clearing_time": clearing_s, "duration_s": duration})
     law = NetworkLaw.uniform(kundur, 0.1, 1.0, 1.1, 1.0)
     fault = BusFault(kundur, 7, clearing_s, trip=(kundur.bus_model.branch_index(7, 8),))
     offline = assess_network(simulate_network(kundur, law, fault, [0.1], duration, RATE_HZ))[0]
