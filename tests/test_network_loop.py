@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import time
 
 import numpy as np
 import pytest
@@ -192,3 +193,32 @@ def test_kundur_realtime_with_four_controller_processes_gives_the_offline_verdic
         assert abs(realtime.pole_slip_s - offline.pole_slip_s) <= 0.1
     assert np.all(np.abs(power) <= 0.1 + 1e-12)  # |P_ST,i| <= b_i at every reported instant
     assert all(values["mode"] == "realtime" and values["measurements"] > 0 for values in plant_summary.values())
+
+
+def test_the_mcap_logger_records_every_generator_of_the_network_run(tmp_path, kundur):
+    """One logger, lockstep with batteries: the file holds /gen1../gen4, each equal to network_sim (1e-12)."""
+    import signal
+
+    from nni_msgs_adapter.recording import read_generator_runs
+
+    domain, path, b = fresh_domain_id(), tmp_path / "network.mcap", 0.1
+    with node_processes(tmp_path, domain) as start:
+        logger = start("logger", "nni_msgs_adapter.mcap_logger", {"output_path": str(path), "discovery_period_s": 0.1})
+        for i in range(kundur.size):
+            start(f"controller_gen{i + 1}", CONTROLLER, controller_parameters(kundur, i, b), ("-r", f"__ns:=/gen{i + 1}"))
+        plant = start("plant", PLANT, {**FAULT, "duration_s": DURATION_S, "pmu_rate_hz": RATE_HZ,
+                                       "wait_for_subscribers": 2})
+        assert plant.wait(timeout=120.0) == 0, plant.output()
+        time.sleep(0.5)  # the last reliable messages land
+        logger.proc.send_signal(signal.SIGINT)
+        assert logger.proc.wait(timeout=15) == 0, logger.output()
+    runs = read_generator_runs(path)
+    assert list(runs) == [f"/gen{i + 1}" for i in range(kundur.size)]
+    law = NetworkLaw.uniform(kundur, 0.1, 1.0, 1.1, 1.0)
+    fault = BusFault(kundur, 7, 0.1, trip=(kundur.bus_model.branch_index(7, 8),))
+    offline = simulate_network(kundur, law, fault, [b], DURATION_S, RATE_HZ)
+    for i, run in enumerate(runs.values()):
+        np.testing.assert_allclose(run.stamp_ns * 1e-9, offline.t_s, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(run.delta_rad, offline.delta_rad[:, i, 0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(run.speed_rad_s, offline.speed_rad_s[:, i, 0], rtol=0, atol=1e-12)
+        assert run.battery_limit_pu == b and run.diagnostics["machine"] == kundur.names[i]
