@@ -109,7 +109,7 @@ class NetworkPlantNode(Node):
         self._scale = self._net.mbase_mva / self._net.base_mva  # pu of machine rating -> pu of the system base
         self.namespaces = tuple(f"gen{i + 1}" for i in range(self._net.size))
         self._period_s = 1.0 / values["pmu_rate_hz"]
-        self.done, self._loop, self._t0_ns, self._gave_up = Future(), None, None, False
+        self.done, self._loop, self._t0_ns, self._finished_ns, self._gave_up = Future(), None, None, None, False
         self._writer_counts = [-1] * self._net.size
         self._channels = [CommandChannel(values["battery_rating_pu"], round(values["command_timeout_s"] * 1e9))
                           for _ in self.namespaces]
@@ -199,6 +199,7 @@ class NetworkPlantNode(Node):
         if output.done:
             for timer in self._run_timers:
                 timer.cancel()
+            self._finished_ns = self._now_ns()
             self._publish_diagnostics()
             self.done.set_result(True)
 
@@ -242,10 +243,11 @@ class NetworkPlantNode(Node):
     # --- diagnostics ---------------------------------------------------------------------
 
     def _generator_values(self) -> list[dict]:
-        """Per generator: the run's time and samples, its channel's counters and the power in force."""
-        run = {"mode": self._values["mode"], "sim_time_s": 0.0, "samples": 0}
+        """Per generator: the run's simulated and wall time and samples, its channel's counters, the power in force."""
+        run = {"mode": self._values["mode"], "sim_time_s": 0.0, "samples": 0, "run_wall_s": 0.0}
         if self._loop is not None:
-            run.update(sim_time_s=self._loop.t_s, samples=self._loop.sample)
+            run.update(sim_time_s=self._loop.t_s, samples=self._loop.sample,
+                       run_wall_s=((self._finished_ns or self._now_ns()) - self._t0_ns) * 1e-9)
         return [{**run, "machine": name, "battery_power_pu": channel.power_pu, **channel.summary()}
                 for name, channel in zip(self._net.names, self._channels)]
 
