@@ -34,7 +34,7 @@ PARAMETERS = (
          "measured (a generator in a network: g = p_mech_pu - the electrical power its PMU measured).",
          choices=("model", "measured")),
     Spec("reference_angle_rad", DEFAULTS["reference_angle_rad"], "restoring_power measured: the generator's pre-fault "
-         "angle, rad, that d is measured from (.nan, the default, for model: delta_bar = asin(P_M/P_max))."),
+         "angle, rad, that d is measured from (.inf, the default: not set, for model: delta_bar = asin(P_M/P_max))."),
 )
 #: Live-tunable while running (validated, K < L): the law's gains. Everything else is locked once the
 #: controller answers measurements: the limit b, the plant model, the rate and the input gate's bounds.

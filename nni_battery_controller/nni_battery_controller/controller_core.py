@@ -64,15 +64,16 @@ def reference_angle(values: dict, plant: SmibParams) -> float:
     """The angle d is measured from: the SMIB model's delta_bar, or ``reference_angle_rad`` for g measured.
 
     ValueError (the reason a parameter change is rejected) when
-    ``reference_angle_rad`` is missing where it is needed (NaN, the default) or
-    given where it does not apply.
+    ``reference_angle_rad`` is missing where it is needed (.inf, the default:
+    not set; not NaN, which would differ from itself in the run's lockdown
+    check) or given where it does not apply.
     """
     given = values["reference_angle_rad"]
     if values["restoring_power"] == "measured":
         if not math.isfinite(given):
             raise ValueError("restoring_power measured needs reference_angle_rad (the generator's pre-fault angle)")
         return given
-    if not math.isnan(given):
+    if given != math.inf:
         raise ValueError("reference_angle_rad applies to restoring_power measured only (the model's is asin(P_M/P_max))")
     return plant.delta_bar_rad
 
