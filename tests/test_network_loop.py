@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import time
 
 import numpy as np
@@ -224,3 +225,34 @@ def test_the_mcap_logger_records_every_generator_of_the_network_run(tmp_path, ku
         np.testing.assert_allclose(run.delta_rad, offline.delta_rad[:, i, 0], rtol=0, atol=1e-12)
         np.testing.assert_allclose(run.speed_rad_s, offline.speed_rad_s[:, i, 0], rtol=0, atol=1e-12)
         assert run.battery_limit_pu == b and run.diagnostics["machine"] == kundur.names[i]
+
+
+def test_a_controller_with_g_measured_answers_from_the_pmus_power_and_counts_what_it_cannot_use(tmp_path):
+    """At the reference angle with x3 = 0 the command is -g = P_E - P_M; no P_E is malformed, NaN non-finite."""
+    domain = fresh_domain_id()
+    topics = (contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_DIAGNOSTICS)
+    with node_processes(tmp_path, domain) as start:
+        start("controller", CONTROLLER, {"restoring_power": "measured", "reference_angle_rad": 0.3,
+                                         "p_mech_pu": 0.7, "battery_limit_pu": 0.3})
+        probe = Probe(domain, topics)
+        try:
+            assert probe.wait_matched(contract.TOPIC_PMU, 1, 30.0)
+            stamp = time.time_ns()
+            no_power = contract.pmu_message(stamp + 1, 0.3, 0.0, 0.0)
+            no_power.effort = []
+            for msg in (contract.pmu_message(stamp, 0.3, 0.0, 0.65), no_power,
+                        contract.pmu_message(stamp + 2, 0.3, 0.0, math.nan),
+                        contract.pmu_message(stamp + 3, 0.3, 0.0, 0.9)):
+                probe.publish(contract.TOPIC_PMU, msg)
+            commands = [contract.command_from_message(m) for m in probe.wait_for(contract.TOPIC_BATTERY_COMMAND, 2, 10.0)]
+            assert commands[0] == (stamp, pytest.approx(0.65 - 0.7, abs=1e-15))  # w = x3 - L*0 - (P_M - P_E)
+            assert commands[1] == (stamp + 3, pytest.approx(0.9 - 0.7, abs=1e-15))  # d = 0 kept x3 at 0
+            deadline, values = time.monotonic() + 5.0, None
+            while values is None and time.monotonic() < deadline:  # the status once both samples are counted
+                time.sleep(0.05)
+                values = next((v for m in probe.take(contract.TOPIC_DIAGNOSTICS)
+                               if (v := contract.diagnostic_values(m, "controller")) is not None
+                               and v["samples"] == "2"), None)
+            assert (values["malformed"], values["non_finite"]) == ("1", "1")
+        finally:
+            probe.close()
