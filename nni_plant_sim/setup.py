@@ -25,6 +25,7 @@ setup(
     entry_points={
         "console_scripts": [
             "plant_node = nni_plant_sim.plant_node:main",
+            "network_plant_node = nni_plant_sim.network_plant_node:main",
         ],
     },
 )

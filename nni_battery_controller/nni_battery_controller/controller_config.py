@@ -30,6 +30,11 @@ PARAMETERS = (
          "clock (realtime: wall clock; lockstep: /clock) is implausible and dropped, s.", 1e-3, 1e6),
     Spec("reanchor_after", DEFAULTS["reanchor_after"], "After this many consecutive stamp rejections, follow the stream's "
          "clock (re-anchor, reset the law) instead of locking out.", 1, 100000),
+    Spec("restoring_power", DEFAULTS["restoring_power"], "Where g comes from: model (the SMIB's g(d) from P_M, P_max) or "
+         "measured (a generator in a network: g = p_mech_pu - the electrical power its PMU measured).",
+         choices=("model", "measured")),
+    Spec("reference_angle_rad", DEFAULTS["reference_angle_rad"], "restoring_power measured: the generator's pre-fault "
+         "angle, rad, that d is measured from (.inf, the default: not set, for model: delta_bar = asin(P_M/P_max))."),
 )
 #: Live-tunable while running (validated, K < L): the law's gains. Everything else is locked once the
 #: controller answers measurements: the limit b, the plant model, the rate and the input gate's bounds.

@@ -6,13 +6,14 @@ Only translates between ROS and :class:`~nni_battery_controller.controller_core.
 
 from __future__ import annotations
 
+import math
 import sys
 
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 
 from nni_battery_controller.controller_config import LOCKED_WHEN_ACTIVE, PARAMETERS, ControllerConfig
-from nni_battery_controller.controller_core import ControllerCore
+from nni_battery_controller.controller_core import ControllerCore, reference_angle
 from nni_msgs_adapter import contract
 from nni_msgs_adapter.node_main import run_node
 from nni_msgs_adapter.ros_params import current_values, declare, install_validation, locked_changes
@@ -28,7 +29,7 @@ class ControllerNode(Node):
         self._core, self._clock_ns = ControllerCore(config), None
         # Warm the answer path once, publishing nothing. Profiled: the first pass costs ~5 ms (first JointState,
         # numpy's first calls), which sample 0 would otherwise pay as latency (above 200/s, as a deadline miss).
-        warm = ControllerCore(config).measurement(0, config.plant.delta_bar_rad, 0.0, 0, 0)
+        warm = ControllerCore(config).measurement(0, config.plant.delta_bar_rad, 0.0, 0, 0, config.plant.p_mech_pu)
         contract.command_message(0, warm.power_pu), contract.controller_state_message(*warm.signals())
         self._command_pub, self._state_pub, self._diag_pub = contract.publishers(
             self, contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE, contract.TOPIC_DIAGNOSTICS)
@@ -42,7 +43,9 @@ class ControllerNode(Node):
 
     def _validate(self, values: dict) -> ControllerConfig:
         locked_changes(self._core.config.values, values, LOCKED_WHEN_ACTIVE if self._core.active else ())
-        return ControllerConfig(values)
+        config = ControllerConfig(values)
+        reference_angle(values, config.plant)
+        return config
 
     def _install(self, config: ControllerConfig) -> None:
         self._core.reconfigure(config)
@@ -55,10 +58,13 @@ class ControllerNode(Node):
         except contract.ContractError:
             self._core.gate.malformed()
             return
+        if self._core.measures_power and len(msg.effort) != 1:  # g measured: P_E is needed
+            self._core.gate.malformed()
+            return
         # Stamps are checked against /clock when a plant publishes it (0 before its first tick), else wall time.
         simulated = self._clock_ns is not None or self._clock_sub.get_publisher_count() > 0
         answer = self._core.measurement(stamp_ns, delta, speed, (self._clock_ns or 0) if simulated else arrival_ns,
-                                        arrival_ns)
+                                        arrival_ns, msg.effort[0] if self._core.measures_power else math.nan)
         if answer is not None:
             self._command_pub.publish(contract.command_message(stamp_ns, answer.power_pu))
             self._stale_timer.reset()  # bookkeeping after the answer is out: none of it changes the command

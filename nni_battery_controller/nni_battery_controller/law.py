@@ -165,15 +165,14 @@ class SampledController:
         """Back to the pre-fault steady state x3 = 0 (used when data resumes after a gap)."""
         self.x3 = 0.0
 
-    def step(self, angle_dev_rad: float) -> tuple[float, float, bool]:
+    def step(self, angle_dev_rad: float, restoring_power_pu: float | None = None) -> tuple[float, float, bool]:
         """Answer one measurement: returns ``(P_ST pu, w pu, saturated)`` and advances x3.
 
-        The mode (|w| >= b) and the output sat_b(w) are decided from the sample
-        and held for one period T; x3 then advances by the exact solution of
-        that mode's linear ODE with d held (zero-order hold):
-
-            unsaturated:  x3+ = e^(-T/tau) x3 + (1 - e^(-T/tau)) K d
-            saturated:    x3+ = e^(-alpha T/K) x3
+        ``restoring_power_pu`` is g, where it is measured: for a generator in a
+        network g_i = P_e,i(pre-fault) - P_e,i(measured). Without it, g is the
+        SMIB's g(d) = P_max (sin(delta_bar) - sin(d + delta_bar)) from the model.
+        The update itself is :func:`sampled_step` (the network simulation runs
+        the same function on arrays).
 
         Scalar Python arithmetic on purpose: this runs once per measurement on
         the controller's critical path, where numpy's per-call overhead on
@@ -181,25 +180,53 @@ class SampledController:
         100 frames/s) against ~25 us for this. The offline sampled simulation
         calls this same method.
 
-        A non-finite measurement must be dropped by the caller; here it raises
-        ValueError rather than poison x3. Finite but absurd inputs (|d| near
-        1e308) could overflow: the output is then zero power and x3 restarts at
-        0, so the command is always finite and within +-b.
+        A non-finite input must be dropped by the caller; here it raises
+        ValueError rather than poison x3.
         """
         if not math.isfinite(angle_dev_rad):
             raise ValueError(f"angle deviation must be finite, got {angle_dev_rad}")
-        b = self.ctrl.battery_limit_pu
-        # saturation_input's w = x3 - L d - g(d), on Python floats (math.sin, constants from __post_init__).
-        w = self.x3 - self.ctrl.gain_l * angle_dev_rad - self._p_max * (
-            self._sin_delta_bar - math.sin(angle_dev_rad + self._delta_bar))
-        saturated = abs(w) >= b
-        if saturated:
-            next_x3 = self._decay_saturated * self.x3
-        else:
-            decay = self._decay_unsaturated
-            next_x3 = decay * self.x3 + (1.0 - decay) * self.ctrl.gain_k * angle_dev_rad
-        power = min(max(w, -b), b)
-        if not (math.isfinite(power) and math.isfinite(next_x3)):
-            power, next_x3 = 0.0, 0.0
-        self.x3 = next_x3
+        if restoring_power_pu is None:
+            # g(d) on Python floats (math.sin, constants from __post_init__).
+            restoring_power_pu = self._p_max * (self._sin_delta_bar - math.sin(angle_dev_rad + self._delta_bar))
+        elif not math.isfinite(restoring_power_pu):
+            raise ValueError(f"restoring power g must be finite, got {restoring_power_pu}")
+        power, w, saturated, self.x3 = sampled_step(
+            self.x3, angle_dev_rad, restoring_power_pu, self.ctrl.gain_k, self.ctrl.gain_l,
+            self.ctrl.battery_limit_pu, self._decay_unsaturated, self._decay_saturated)
         return power, w, saturated
+
+
+def sampled_step(x3, angle_dev_rad, restoring_power_pu, gain_k, gain_l, limit_pu, decay_unsaturated,
+                 decay_saturated):
+    """One period of the sampled-data H3-hat: ``(P_ST, w, saturated, next x3)``, floats or arrays alike.
+
+    The mode (|w| >= b) and the output sat_b(w) are decided from the sample
+    and held for one period T; x3 then advances by the exact solution of that
+    mode's linear ODE with d held (zero-order hold):
+
+        w             = x3 - L d - g
+        unsaturated:  x3+ = e^(-T/tau) x3 + (1 - e^(-T/tau)) K d
+        saturated:    x3+ = e^(-alpha T/K) x3
+
+    ``decay_*`` are those factors. Python floats (one generator, the
+    controller's critical path) stay floats; arrays (every generator of a
+    network, many runs: all arguments broadcast) are computed elementwise by
+    the same formulas. Where w or x3+ is not finite (finite but absurd inputs,
+    |d| near 1e308, can overflow) the output is zero power and x3 restarts at
+    0, so the command is always finite and within +-b.
+    """
+    w = x3 - gain_l * angle_dev_rad - restoring_power_pu
+    held = decay_saturated * x3
+    tracking = decay_unsaturated * x3 + (1.0 - decay_unsaturated) * gain_k * angle_dev_rad
+    if isinstance(w, float):
+        saturated = abs(w) >= limit_pu
+        next_x3 = held if saturated else tracking
+        power = min(max(w, -limit_pu), limit_pu)
+        if not (math.isfinite(power) and math.isfinite(next_x3)):
+            return 0.0, w, saturated, 0.0
+        return power, w, saturated, next_x3
+    saturated = np.abs(w) >= limit_pu
+    next_x3 = np.where(saturated, held, tracking)
+    power = np.clip(w, -limit_pu, limit_pu)
+    bad = ~(np.isfinite(power) & np.isfinite(next_x3))
+    return np.where(bad, 0.0, power), w, saturated, np.where(bad, 0.0, next_x3)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nni_battery_controller.law import ControllerParams
+from nni_battery_controller.law import ControllerParams, sampled_step
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.network import Network, electrical_power
 
@@ -89,8 +89,8 @@ class NetworkController:
     """Sampled-data H3-hat at every generator for R runs at once: one call per PMU sample.
 
     ``limits_pu`` (shape (N, R) or broadcastable) are the battery limits b_i on
-    the system base. The update is law.SampledController.step's, elementwise
-    (its float code is the SMIB's; tests check that both agree for N = 1).
+    the system base. The update is :func:`law.sampled_step`, the SMIB's
+    SampledController's, on arrays (tests check both agree step for step).
     """
 
     law: NetworkLaw
@@ -114,14 +114,9 @@ class NetworkController:
         """
         angle_dev = self.law.angle_dev(delta_rad)
         restoring = self.law.net.p_mech_pu[:, None] - p_electrical_pu
-        w = self.x3 - self._l * angle_dev - restoring
-        saturated = np.abs(w) >= self.limits_pu
-        next_x3 = np.where(saturated, self._decay_saturated * self.x3,
-                           self._decay_unsaturated * self.x3 + (1.0 - self._decay_unsaturated) * self._k * angle_dev)
-        power = np.clip(w, -self.limits_pu, self.limits_pu)
-        bad = ~(np.isfinite(power) & np.isfinite(next_x3))
-        self.x3 = np.where(bad, 0.0, next_x3)
-        return np.where(bad, 0.0, power), w, saturated
+        power, w, saturated, self.x3 = sampled_step(self.x3, angle_dev, restoring, self._k, self._l, self.limits_pu,
+                                                    self._decay_unsaturated, self._decay_saturated)
+        return power, w, saturated
 
 
 @dataclass(frozen=True)
