@@ -84,7 +84,9 @@ def closed_loop_rate(t: float, x: tuple, u: tuple, params: LoopParams) -> tuple:
     plant, ctrl, mode = params.plant, params.ctrl, params.mode
     angle_dev = delta - plant.delta_bar_rad
     b = ctrl.battery_limit_pu
-    if mode == BY_STATE:
+    if mode == BY_STATE and b == 0.0:  # no battery: saturated whatever w, no power (w need not be computed)
+        power, x3_dot = 0.0, x3_rate(x3, angle_dev, True, ctrl)
+    elif mode == BY_STATE:
         w = saturation_input(x3, angle_dev, ctrl, plant)
         power, x3_dot = saturate(w, b), x3_rate(x3, angle_dev, is_saturated(w, b), ctrl)
     elif mode == UNSATURATED:
