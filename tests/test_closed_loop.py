@@ -17,7 +17,7 @@ from nni_battery_controller.closed_loop import (
 )
 from nni_battery_controller.law import ControllerParams
 from nni_plant_sim.integrators import advance, rk4
-from nni_plant_sim.model import SmibParams
+from nni_plant_sim.model import SmibParams, plant_rate
 from nni_plant_sim.scenarios import TransferLimitFault
 
 PLANT = SmibParams(inertia_h_s=4.0, damping_pu=0.05, p_mech_pu=0.8, p_max_pu=1.0, f0_hz=50.0)
@@ -97,9 +97,15 @@ def test_rk4_is_fourth_order():
     assert 14.0 < ratio < 18.0  # 2^4 = 16
 
 
-def test_the_plants_float_fast_path_is_the_generic_rk4_to_the_bit():
-    scenario = TransferLimitFault(p_max_fault_pu=0.2, clearing_time_s=0.05)
-    x = np.array([0.95, 0.3])
-    one = advance(0.0, 0.2, x, 0.1, PLANT, scenario)  # floats: the written-out path
-    batch = advance(0.0, 0.2, np.column_stack((x, x)), np.array([0.1, 0.1]), PLANT, scenario)  # arrays: rk4
-    assert one.tolist() == batch[:, 0].tolist() == batch[:, 1].tolist()
+@pytest.mark.parametrize("batch", [False, True])
+def test_the_plants_written_out_rk4_is_the_generic_rk4_of_plant_rate_to_the_bit(batch):
+    scenario = TransferLimitFault(p_max_fault_pu=0.2, clearing_time_s=0.5)
+    x = np.array([[0.95, 1.2], [0.3, -2.0]]) if batch else np.array([0.95, 0.3])
+    power = np.array([0.1, -0.05]) if batch else 0.1
+    steps = 50
+    got = advance(0.0, 0.05, x, power, PLANT, scenario)  # the plant node's call: no breakpoint inside
+    h = 0.05 / steps  # advance's step for this interval
+    state = (x[0], x[1]) if batch else (float(x[0]), float(x[1]))
+    for _ in range(steps):
+        state = rk4(plant_rate, 0.0, state, h, power, (PLANT, scenario.network(0.0, PLANT)))
+    assert got.tolist() == np.array(state).tolist()

@@ -3,10 +3,13 @@
 A system is written as python-control's ``nlsys`` update function: ``rate(t, x,
 u, params)`` returns the time derivative of the state ``x`` (a tuple of its
 components, each a float for one trajectory or an array for many, all of one
-shape) for an input ``u`` held over the step. :func:`rk4` steps any such system:
-the swing equation of the plant (:func:`nni_plant_sim.model.plant_rate`) and the closed loop of
-plant and H3-hat (:func:`nni_battery_controller.closed_loop.closed_loop_rate`,
-for the region-of-attraction sweep and the continuous simulation's modes).
+shape) for an input ``u`` held over the step. :func:`rk4` steps any such system,
+e.g. the closed loop of plant and H3-hat
+(:func:`nni_battery_controller.closed_loop.closed_loop_rate`, in the
+region-of-attraction sweep). The plant's own system
+(:func:`nni_plant_sim.model.plant_rate`) is stepped by the same RK4 written out
+for its two states (the plant's per-sample path, where the generic step's
+overhead shows), the same sums in the same order: bit for bit the same result.
 
 :func:`advance` integrates the plant over one controller period with the
 battery power held: the plant node and the offline sampled-data simulations
@@ -29,15 +32,18 @@ from nni_plant_sim.model import acceleration_of, plant_rate
 def rk4(rate, t: float, x: tuple, h: float, u, params) -> tuple:
     """One classical Runge-Kutta step of ``x' = rate(t, x, u, params)`` over ``h`` s, ``u`` held.
 
-    ``x`` is a tuple of state components (floats, or arrays of one shape for a
-    batch of trajectories); returns the state at ``t + h``, a tuple alike. The
-    sums are those of ``x + h/6 (k1 + 2 k2 + 2 k3 + k4)``, componentwise.
+    ``x`` is a sequence of state components (floats, or arrays of one shape for
+    a batch of trajectories; ``rate`` gets the stages as lists); returns the
+    state at ``t + h``, a tuple. The sums are those of
+    ``x + h/6 (k1 + 2 k2 + 2 k3 + k4)``, componentwise.
     """
+    half = 0.5 * h
     k1 = rate(t, x, u, params)
-    k2 = rate(t + 0.5 * h, tuple(xi + 0.5 * h * ki for xi, ki in zip(x, k1)), u, params)
-    k3 = rate(t + 0.5 * h, tuple(xi + 0.5 * h * ki for xi, ki in zip(x, k2)), u, params)
-    k4 = rate(t + h, tuple(xi + h * ki for xi, ki in zip(x, k3)), u, params)
-    return tuple(xi + (h / 6.0) * (a + 2.0 * b + 2.0 * c + d) for xi, a, b, c, d in zip(x, k1, k2, k3, k4))
+    k2 = rate(t + half, [xi + half * ki for xi, ki in zip(x, k1)], u, params)
+    k3 = rate(t + half, [xi + half * ki for xi, ki in zip(x, k2)], u, params)
+    k4 = rate(t + h, [xi + h * ki for xi, ki in zip(x, k3)], u, params)
+    sixth = h / 6.0
+    return tuple([xi + sixth * (a + 2.0 * b + 2.0 * c + d) for xi, a, b, c, d in zip(x, k1, k2, k3, k4)])
 
 
 def rk4_step(t: float, x, h: float, battery_power_pu, plant, scenario) -> np.ndarray:
@@ -47,8 +53,8 @@ def rk4_step(t: float, x, h: float, battery_power_pu, plant, scenario) -> np.nda
     returns the same shape. The network is evaluated at the step's start
     (callers split steps at the scenario's breakpoints, so it is constant inside).
     """
-    delta, speed = _components(x)
-    return np.array(_plant_steps(delta, speed, h, 1, battery_power_pu, plant, scenario.network(t, plant)))
+    p_mech, network = scenario.network(t, plant)
+    return np.array(_rk4_swing(*_components(x), h, battery_power_pu, plant, p_mech, network, acceleration_of(plant)))
 
 
 def _components(x) -> tuple:
@@ -62,32 +68,15 @@ def _components(x) -> tuple:
     return (float(x[0]), float(x[1])) if x.ndim == 1 else (x[0], x[1])
 
 
-def _plant_steps(delta, speed, h: float, steps: int, battery_power_pu, plant, network_in_force) -> tuple:
-    """``steps`` RK4 steps of :func:`plant_rate` (:func:`rk4`), network and battery power held.
+def _rk4_swing(delta, speed, h, battery_power_pu, plant, p_mech, network, acceleration) -> tuple:
+    """:func:`rk4` of :func:`~nni_plant_sim.model.plant_rate` written out: the same sums in the same order.
 
-    One trajectory (floats) takes the written-out :func:`_rk4_floats`, chosen
-    once per piece of constant network rather than per step.
-    """
-    if isinstance(delta, float):
-        acceleration = acceleration_of(plant)
-        p_mech, network = network_in_force
-        for _ in range(steps):
-            delta, speed = _rk4_floats(delta, speed, h, battery_power_pu, plant, p_mech, network, acceleration)
-        return delta, speed
-    params = (plant, network_in_force)
-    for _ in range(steps):
-        delta, speed = rk4(plant_rate, 0.0, (delta, speed), h, battery_power_pu, params)
-    return delta, speed
-
-
-def _rk4_floats(delta, speed, h, battery_power_pu, plant, p_mech, network, acceleration) -> tuple:
-    """:func:`rk4` of :func:`plant_rate` written out on floats: the same sums in the same order.
-
-    The plant node's path (20 to 50 RK4 steps a sample): the generic step's
-    tuples, generators and rate calls cost more than the arithmetic on two
-    floats (timings in the notes on issue 12). Stage k_i = (k_i delta, k_i
-    speed) = (speed at the stage, acceleration at the stage), as plant_rate
-    gives them; ``acceleration`` is :func:`~nni_plant_sim.model.acceleration_of` the plant.
+    The plant's path, the node's (20 to 50 steps a sample, on floats) and the
+    network batches' (arrays): the generic step's lists and rate calls cost more
+    than the arithmetic on two floats (2.5x, timings in the notes on issue 12)
+    and some 5 % on a network batch. Stage k_i = (k_i delta, k_i speed) = (speed
+    at the stage, acceleration at the stage), as plant_rate gives them;
+    ``acceleration`` is :func:`~nni_plant_sim.model.acceleration_of` the plant.
     """
     k1_delta, k1_speed = speed, acceleration(delta, speed, battery_power_pu, plant, p_mech, network)
     k2_delta = speed + 0.5 * h * k1_speed
@@ -126,8 +115,11 @@ def advance(
     cuts = [t0_s, *(tb for tb in scenario.breakpoints() if t0_s < tb < t1_s), t1_s]
     delta, speed = _components(x)
     power = float(battery_power_pu) if np.ndim(battery_power_pu) == 0 else battery_power_pu
+    acceleration = acceleration_of(plant)
     for start, stop in zip(cuts[:-1], cuts[1:]):
         steps = max(1, math.ceil((stop - start) / max_step_s - 1e-9))
         h = (stop - start) / steps
-        delta, speed = _plant_steps(delta, speed, h, steps, power, plant, scenario.network(start, plant))
+        p_mech, network = scenario.network(start, plant)
+        for _ in range(steps):
+            delta, speed = _rk4_swing(delta, speed, h, power, plant, p_mech, network, acceleration)
     return np.array((delta, speed))
