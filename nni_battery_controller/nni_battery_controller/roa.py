@@ -18,7 +18,8 @@ Time model. The paper's continuous-time law (what
 switching events and Filippov sliding), integrated by classical RK4 at a fixed
 10 ms step with the law's right-hand side taken as it stands at each stage (the
 mode from that stage's own w: :func:`~nni_battery_controller.closed_loop.closed_loop_rate`
-stepped by :func:`nni_plant_sim.integrators.rk4`, the plant node's RK4). Away from a switch
+stepped by :func:`nni_plant_sim.integrators.rk4`, the RK4 whose written-out form
+steps the plant node). Away from a switch
 this is 4th-order accurate (the fastest closed-loop rates, |lambda| = 5.7/s and
 1/tau = 10/s, times the step are at most 0.1); a step that straddles a switch,
 or a sliding motion whose stages fall on both sides of |w| = b, makes an O(h)
