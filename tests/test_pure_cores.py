@@ -24,6 +24,7 @@ PURE_MODULES = [
     "nni_battery_controller.law",
     "nni_battery_controller.simulate",
     "nni_battery_controller.roa",
+    "nni_battery_controller.closed_loop",
     "nni_battery_controller.cli",
     "nni_battery_controller.network_sim",
     "nni_battery_controller.network_cli",

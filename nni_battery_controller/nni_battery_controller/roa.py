@@ -17,7 +17,9 @@ Time model. The paper's continuous-time law (what
 :func:`~nni_battery_controller.simulate.simulate_continuous` solves with located
 switching events and Filippov sliding), integrated by classical RK4 at a fixed
 10 ms step with the law's right-hand side taken as it stands at each stage (the
-mode from that stage's own w: :func:`closed_loop_rate`). Away from a switch
+mode from that stage's own w: :func:`~nni_battery_controller.closed_loop.closed_loop_rate`
+stepped by :func:`nni_plant_sim.integrators.rk4`, the RK4 whose written-out form
+steps the plant node). Away from a switch
 this is 4th-order accurate (the fastest closed-loop rates, |lambda| = 5.7/s and
 1/tau = 10/s, times the step are at most 0.1); a step that straddles a switch,
 or a sliding motion whose stages fall on both sides of |w| = b, makes an O(h)
@@ -49,9 +51,9 @@ active set shrinks as the run goes):
   the origin is the only equilibrium inside Omega); with D = 0 W is constant,
   the machine oscillates on a closed orbit and never returns (STAYS).
 
-The dynamics are the existing vectorised functions (:func:`swing_rhs`,
-:func:`saturation_input`, :func:`saturate`, :func:`x3_rate`) applied to states
-shaped (3, N); there is no second copy of the physics here. Pure numpy (scipy
+The dynamics are the one closed-loop system
+(:mod:`nni_battery_controller.closed_loop`) applied to states whose components
+have shape (N,); there is no second copy of the physics here. Pure numpy (scipy
 for the per-trajectory baseline): no ROS import.
 """
 
@@ -64,23 +66,16 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq
 
-from nni_battery_controller.law import (
-    ControllerParams,
-    is_saturated,
-    q1_matrix,
-    saturate,
-    saturation_input,
-    x3_rate,
-)
+from nni_battery_controller.closed_loop import LoopParams, closed_loop_rate
+from nni_battery_controller.law import ControllerParams, q1_matrix, saturation_input
 from nni_battery_controller.simulate import POLE_SLIP_RAD, simulate_continuous
-from nni_plant_sim.integrators import rk4_step
+from nni_plant_sim.integrators import rk4
 from nni_plant_sim.model import (
     SmibParams,
     critical_angles_rad,
     in_invariant_set,
     invariant_set_boundary,
     invariant_set_level,
-    swing_rhs,
 )
 from nni_plant_sim.scenarios import InitialAngle
 
@@ -231,34 +226,14 @@ def decide(angle_dev_rad, speed_rad_s, x3, slipped, plant: SmibParams, ctrl: Con
     return outcome
 
 
-def closed_loop_rate(state, plant: SmibParams, ctrl: ControllerParams):
-    """Right-hand side of the continuous closed loop (H1, H3-hat) off the switching surface; vectorised.
+def closed_loop_step(state: tuple, step_s: float, params: LoopParams) -> tuple:
+    """One RK4 step of the post-fault closed loop, the law's mode taken at each stage; vectorised.
 
-    ``state`` is ``[delta rad, speed deviation rad/s, x3 pu]``, shape (3, N);
-    returns its time derivative, same shape. The mode is the state's own
-    (|w| >= b saturated); the network is the post-fault one (P_M, P_max of ``plant``).
+    ``state`` is ``(delta rad, speed deviation rad/s, x3 pu)``, arrays of shape
+    (N,); :func:`~nni_battery_controller.closed_loop.closed_loop_rate` stepped by
+    the one integrator, :func:`nni_plant_sim.integrators.rk4`.
     """
-    angle_dev = state[0] - plant.delta_bar_rad
-    w = saturation_input(state[2], angle_dev, ctrl, plant)
-    b = ctrl.battery_limit_pu
-    plant_rate = swing_rhs(state[:2], saturate(w, b), plant, plant.p_mech_pu, plant.p_max_pu)
-    return np.concatenate((plant_rate, x3_rate(state[2], angle_dev, is_saturated(w, b), ctrl)[np.newaxis]))
-
-
-def closed_loop_step(state, step_s: float, plant: SmibParams, ctrl: ControllerParams):
-    """One classical RK4 step of :func:`closed_loop_rate` (the law's mode taken at each stage).
-
-    With no battery (b = 0) the power is zero in every mode and x3 decays on its
-    own: the plant alone is advanced by the plant node's RK4 and x3 exactly.
-    """
-    if ctrl.battery_limit_pu == 0.0:
-        plant_state = rk4_step(0.0, state[:2], step_s, 0.0, plant, POST_FAULT)
-        return np.concatenate((plant_state, state[2:] * math.exp(-ctrl.alpha * step_s / ctrl.gain_k)))
-    k1 = closed_loop_rate(state, plant, ctrl)
-    k2 = closed_loop_rate(state + 0.5 * step_s * k1, plant, ctrl)
-    k3 = closed_loop_rate(state + 0.5 * step_s * k2, plant, ctrl)
-    k4 = closed_loop_rate(state + step_s * k3, plant, ctrl)
-    return state + (step_s / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+    return rk4(closed_loop_rate, 0.0, state, step_s, POST_FAULT.network(0.0, params.plant), params)
 
 
 def classify(plant: SmibParams, ctrl: ControllerParams, angle_dev0_rad, speed0_rad_s,
@@ -296,7 +271,8 @@ def classify(plant: SmibParams, ctrl: ControllerParams, angle_dev0_rad, speed0_r
     decided_at = np.full(angle_dev0.size, np.nan)
 
     active = np.arange(angle_dev0.size)  # indices of the trajectories still integrated
-    state = np.stack((angle_dev0 + delta_bar, speed0, np.zeros_like(angle_dev0)))
+    state = (angle_dev0 + delta_bar, speed0, np.zeros_like(angle_dev0))
+    params = LoopParams(plant, ctrl)
     max_abs_delta = np.abs(angle_dev0 + delta_bar)  # the rotor angle, for the pole-slip rule
     check_every = max(1, round(CHECK_EVERY_S / step_s))
     steps = math.ceil(horizon_s / step_s - 1e-9)
@@ -308,16 +284,16 @@ def classify(plant: SmibParams, ctrl: ControllerParams, angle_dev0_rad, speed0_r
                 outcome[active[done]] = now[done]
                 decided_at[active[done]] = k * step_s
                 keep = ~done
-                active, state, max_abs_delta = active[keep], state[:, keep], max_abs_delta[keep]
+                active, state, max_abs_delta = active[keep], tuple(c[keep] for c in state), max_abs_delta[keep]
             if on_check is not None:
                 on_check(k * step_s, active.size)
             if active.size == 0 or k == steps:
                 break
-        previous, state = state, closed_loop_step(state, step_s, plant, ctrl)
+        previous, state = state, closed_loop_step(state, step_s, params)
         np.maximum(max_abs_delta, np.abs(state[0]), out=max_abs_delta)
         turned = np.flatnonzero(previous[1] * state[1] < 0.0)  # the speed changed sign: a peak of d inside
         if turned.size:
-            peak = step_peak_angle(previous[0, turned], previous[1, turned], state[0, turned], state[1, turned],
+            peak = step_peak_angle(previous[0][turned], previous[1][turned], state[0][turned], state[1][turned],
                                    step_s)
             max_abs_delta[turned] = np.maximum(max_abs_delta[turned], np.abs(peak))
     return outcome, decided_at

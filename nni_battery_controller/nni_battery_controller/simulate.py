@@ -2,9 +2,10 @@
 
 Two time models of the same loop:
 
-* :func:`simulate_continuous`: the paper's continuous-time H3-hat. The switching
-  rule is discontinuous at |w| = b, so the switching instants are located as
-  events of an adaptive integrator (scipy's DOP853) and the mode changes there.
+* :func:`simulate_continuous`: the paper's continuous-time H3-hat, the closed
+  loop of :mod:`nni_battery_controller.closed_loop`. The switching rule is
+  discontinuous at |w| = b, so the switching instants are located as events of
+  an adaptive integrator (scipy's DOP853) and the mode changes there.
 * :func:`simulate_sampled`: what runs in the controller node: the law sampled at
   ``rate_hz`` (mode and output held between samples, x3 discretised exactly), the
   plant integrated with the fixed-step RK4 of :mod:`nni_plant_sim.integrators`
@@ -22,6 +23,14 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
+from nni_battery_controller.closed_loop import (
+    SATURATED,
+    SLIDING,
+    UNSATURATED,
+    LoopParams,
+    closed_loop_rate,
+    surface_drift,
+)
 from nni_battery_controller.law import (
     ControllerParams,
     SampledController,
@@ -30,7 +39,7 @@ from nni_battery_controller.law import (
     x3_rate,
 )
 from nni_plant_sim.integrators import advance
-from nni_plant_sim.model import SmibParams, swing_rhs
+from nni_plant_sim.model import SmibParams
 
 #: A pole slip: the rotor angle delta against the infinite bus passes +-pi (180 degrees).
 POLE_SLIP_RAD = math.pi
@@ -131,26 +140,18 @@ def simulate_continuous(
 
     def w_rates(z):
         """dw/dt under the unsaturated and the saturated x3 law, pu/s."""
-        # w' = x3' - (L + g'(d)) d', with g'(d) = -P_max cos(d + delta_bar).
-        drift = (ctrl.gain_l - plant.p_max_pu * math.cos(z[0])) * z[1]
+        drift = surface_drift(z[0], z[1], ctrl, plant)
         return x3_rate(z[2], z[0] - delta_bar, False, ctrl) - drift, x3_rate(z[2], z[0] - delta_bar, True, ctrl) - drift
 
     evaluations = [0]
 
-    def rhs(t, z, mode, side, network):
+    def rhs(t, z, params, network):
+        """The closed loop (:func:`closed_loop_rate`) in the held mode, for solve_ivp."""
         evaluations[0] += 1
         if evaluations[0] > MAX_RHS_EVALUATIONS:
             raise RuntimeError(f"more than {MAX_RHS_EVALUATIONS} right-hand side evaluations by t={t:.6f} s: "
                                f"the loop is too stiff for this run (see --help on bounds)")
-        w = w_of(z)
-        if mode == UNSATURATED:
-            power, x3_dot = w, x3_rate(z[2], z[0] - delta_bar, False, ctrl)
-        elif mode == SATURATED:
-            power, x3_dot = side * b, x3_rate(z[2], z[0] - delta_bar, True, ctrl)
-        else:  # sliding: keep w on the surface
-            power, x3_dot = side * b, (ctrl.gain_l - plant.p_max_pu * math.cos(z[0])) * z[1]
-        dx = swing_rhs(z[:2], power, plant, *network)
-        return np.array([dx[0], dx[1], x3_dot])
+        return np.array(closed_loop_rate(t, (z[0], z[1], z[2]), network, params))
 
     def events_for(mode, side):
         """Terminal events that end ``mode``; None when b makes switching impossible."""
@@ -204,7 +205,7 @@ def simulate_continuous(
         stop = next(s for s in stops if s > t)
         sol = solve_ivp(
             rhs, (t, stop), z, method="DOP853", rtol=rtol, atol=atol, dense_output=True,
-            events=events_for(mode, side), args=(mode, side, scenario.network(t, plant)),
+            events=events_for(mode, side), args=(LoopParams(plant, ctrl, mode, side), scenario.network(t, plant)),
         )
         if sol.status < 0:
             raise RuntimeError(f"integration failed at t={t:.6f} s: {sol.message}")
@@ -243,7 +244,6 @@ def simulate_continuous(
     return Trajectory(plant, ctrl, t_all, z_all[0], z_all[1], z_all[2], power, w, sat_all, np.array(switches))
 
 
-UNSATURATED, SATURATED, SLIDING = "unsaturated", "saturated", "sliding"
 #: Spacing of the scan for mode boundaries crossed inside one integrator step, s.
 SCAN_STEP_S = 2.5e-4
 

@@ -1,12 +1,23 @@
-"""Fixed-step integration shared by the offline sampled-data simulations and the plant node.
+"""The one fixed-step integrator: classical RK4 of a system ``x' = f(t, x, u, params)``.
 
-Both call :func:`advance` over one controller period with the same arguments, so
-the distributed lockstep loop reproduces the offline run to rounding error.
-The region-of-attraction sweep calls :func:`rk4_step` on arrays of states.
-One RK4 for the SMIB (``plant`` a :class:`SmibParams`) and for a network of
-generators (``plant`` a :class:`nni_plant_sim.network.Network`, whose scenarios
-give ``(P_m vector, Coupling)`` where the SMIB's give ``(P_M, P_max)``).
-Pure python and numpy: no ROS import.
+A system is written as python-control's ``nlsys`` update function: ``rate(t, x,
+u, params)`` returns the time derivative of the state ``x`` (a tuple of its
+components, each a float for one trajectory or an array for many, all of one
+shape) for an input ``u`` held over the step. :func:`rk4` steps any such system,
+e.g. the closed loop of plant and H3-hat
+(:func:`nni_battery_controller.closed_loop.closed_loop_rate`, in the
+region-of-attraction sweep). The plant's own system
+(:func:`nni_plant_sim.model.plant_rate`) is stepped by the same RK4 written out
+for its two states (the plant's per-sample path, where the generic step's
+overhead shows), the same sums in the same order: bit for bit the same result.
+
+:func:`advance` integrates the plant over one controller period with the
+battery power held: the plant node and the offline sampled-data simulations
+make the same call, so the distributed lockstep loop reproduces the offline run
+to rounding error. One RK4 for the SMIB (``plant`` a :class:`SmibParams`) and
+for a network of generators (``plant`` a :class:`nni_plant_sim.network.Network`,
+whose scenarios give ``(P_m vector, Coupling)`` where the SMIB's give
+``(P_M, P_max)``). Pure python and numpy: no ROS import.
 """
 
 from __future__ import annotations
@@ -15,24 +26,35 @@ import math
 
 import numpy as np
 
-from nni_plant_sim.model import SmibParams, swing_acceleration
-from nni_plant_sim.network import network_acceleration
+from nni_plant_sim.model import acceleration_of, plant_rate
+
+
+def rk4(rate, t: float, x: tuple, h: float, u, params) -> tuple:
+    """One classical Runge-Kutta step of ``x' = rate(t, x, u, params)`` over ``h`` s, ``u`` held.
+
+    ``x`` is a sequence of state components (floats, or arrays of one shape for
+    a batch of trajectories; ``rate`` gets the stages as lists); returns the
+    state at ``t + h``, a tuple. The sums are those of
+    ``x + h/6 (k1 + 2 k2 + 2 k3 + k4)``, componentwise.
+    """
+    half = 0.5 * h
+    k1 = rate(t, x, u, params)
+    k2 = rate(t + half, [xi + half * ki for xi, ki in zip(x, k1)], u, params)
+    k3 = rate(t + half, [xi + half * ki for xi, ki in zip(x, k2)], u, params)
+    k4 = rate(t + h, [xi + h * ki for xi, ki in zip(x, k3)], u, params)
+    sixth = h / 6.0
+    return tuple([xi + sixth * (a + 2.0 * b + 2.0 * c + d) for xi, a, b, c, d in zip(x, k1, k2, k3, k4)])
 
 
 def rk4_step(t: float, x, h: float, battery_power_pu, plant, scenario) -> np.ndarray:
-    """One classical Runge-Kutta step of the swing equation, battery power held.
+    """One RK4 step of the plant (:func:`plant_rate`), battery power held.
 
     ``x`` is ``[delta (rad), speed deviation (rad/s)]``, shape (2,) or (2, N);
     returns the same shape. The network is evaluated at the step's start
     (callers split steps at the scenario's breakpoints, so it is constant inside).
     """
-    return np.array(_rk4(*_components(x), h, battery_power_pu, plant, scenario.network(t, plant),
-                         _acceleration_of(plant)))
-
-
-def _acceleration_of(plant):
-    """The swing equation of a SMIB (:class:`SmibParams`) or of a network of generators."""
-    return swing_acceleration if isinstance(plant, SmibParams) else network_acceleration
+    p_mech, network = scenario.network(t, plant)
+    return np.array(_rk4_swing(*_components(x), h, battery_power_pu, plant, p_mech, network, acceleration_of(plant)))
 
 
 def _components(x) -> tuple:
@@ -46,18 +68,16 @@ def _components(x) -> tuple:
     return (float(x[0]), float(x[1])) if x.ndim == 1 else (x[0], x[1])
 
 
-def _rk4(delta, speed, h: float, battery_power_pu, plant, network_in_force, acceleration):
-    """RK4 written out for the two states: floats (one trajectory) or arrays (many) alike.
+def _rk4_swing(delta, speed, h, battery_power_pu, plant, p_mech, network, acceleration) -> tuple:
+    """:func:`rk4` of :func:`~nni_plant_sim.model.plant_rate` written out: the same sums in the same order.
 
-    ``acceleration(delta, speed, battery_power_pu, plant, *network_in_force)``
-    is the swing equation (:func:`_acceleration_of`); ``network_in_force`` is
-    ``scenario.network(t, plant)``, constant over the step.
-
-    Stage k_i = (k_i delta, k_i speed) = (speed at the stage, swing acceleration
-    at the stage); the same sums as ``x + h/6 (k1 + 2 k2 + 2 k3 + k4)`` on the
-    state vector, without allocating one.
+    The plant's path, the node's (20 to 50 steps a sample, on floats) and the
+    network batches' (arrays): the generic step's lists and rate calls cost more
+    than the arithmetic on two floats (2.5x, timings in the notes on issue 12)
+    and some 5 % on a network batch. Stage k_i = (k_i delta, k_i speed) = (speed
+    at the stage, acceleration at the stage), as plant_rate gives them;
+    ``acceleration`` is :func:`~nni_plant_sim.model.acceleration_of` the plant.
     """
-    p_mech, network = network_in_force
     k1_delta, k1_speed = speed, acceleration(delta, speed, battery_power_pu, plant, p_mech, network)
     k2_delta = speed + 0.5 * h * k1_speed
     k2_speed = acceleration(delta + 0.5 * h * k1_delta, k2_delta, battery_power_pu, plant, p_mech, network)
@@ -95,11 +115,11 @@ def advance(
     cuts = [t0_s, *(tb for tb in scenario.breakpoints() if t0_s < tb < t1_s), t1_s]
     delta, speed = _components(x)
     power = float(battery_power_pu) if np.ndim(battery_power_pu) == 0 else battery_power_pu
-    acceleration = _acceleration_of(plant)
+    acceleration = acceleration_of(plant)
     for start, stop in zip(cuts[:-1], cuts[1:]):
         steps = max(1, math.ceil((stop - start) / max_step_s - 1e-9))
         h = (stop - start) / steps
-        network_in_force = scenario.network(start, plant)
+        p_mech, network = scenario.network(start, plant)
         for _ in range(steps):
-            delta, speed = _rk4(delta, speed, h, power, plant, network_in_force, acceleration)
+            delta, speed = _rk4_swing(delta, speed, h, power, plant, p_mech, network, acceleration)
     return np.array((delta, speed))

@@ -150,8 +150,40 @@ def swing_acceleration(delta_rad, speed_rad_s, battery_power_pu, plant: SmibPara
                                       plant.inertia_m)
 
 
+def plant_rate(t: float, x: tuple, u, params) -> tuple:
+    """The swing equation as a system: ``(delta, speed)' = (speed, delta'')``.
+
+    Parameters
+    ----------
+    t : float
+        Time, s (unused: the network in force is in ``params``, constant over a step).
+    x : tuple
+        ``(delta rad, speed deviation rad/s)``: floats; arrays (N,) for N SMIB
+        runs; arrays (N,) or (N, R) for a network of N generators (R runs).
+    u : float or numpy.ndarray
+        Battery power P_ST, pu, broadcasting against the state's components.
+    params : tuple
+        ``(plant, network_in_force)``: a :class:`SmibParams` or a
+        :class:`~nni_plant_sim.network.Network`, and what its scenario's
+        ``network(t, plant)`` gives.
+
+    Returns
+    -------
+    tuple
+        ``(delta' rad/s, delta'' rad/s^2)``, shaped as ``x``.
+    """
+    delta, speed = x
+    plant, (p_mech, coupling) = params
+    return speed, acceleration_of(plant)(delta, speed, u, plant, p_mech, coupling)
+
+
+def acceleration_of(plant):
+    """The swing equation of a SMIB (:class:`SmibParams`) or of a network of generators."""
+    return swing_acceleration if isinstance(plant, SmibParams) else network.network_acceleration
+
+
 def swing_rhs(x, battery_power_pu, plant: SmibParams, p_mech_pu: float, p_max_pu: float):
-    """The swing equation as a first-order system, ``x' = f(x)``, for ODE solvers.
+    """:func:`plant_rate` of the SMIB on a state array, ``x' = f(x)``, for ODE solvers.
 
     Parameters
     ----------
@@ -165,9 +197,9 @@ def swing_rhs(x, battery_power_pu, plant: SmibParams, p_mech_pu: float, p_max_pu
     numpy.ndarray, same shape as ``x``
         ``[delta' (rad/s), delta'' (rad/s^2)]``.
     """
-    delta, speed = np.asarray(x[0], dtype=float), np.asarray(x[1], dtype=float)
-    accel = swing_acceleration(delta, speed, battery_power_pu, plant, p_mech_pu, p_max_pu)
-    return np.stack(np.broadcast_arrays(speed, accel)).astype(float, copy=False)
+    state = (np.asarray(x[0], dtype=float), np.asarray(x[1], dtype=float))
+    rate = plant_rate(0.0, state, battery_power_pu, (plant, (p_mech_pu, p_max_pu)))
+    return np.stack(np.broadcast_arrays(*rate)).astype(float, copy=False)
 
 
 def electrical_power(delta_rad, p_max_pu: float):
