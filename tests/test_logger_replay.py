@@ -35,7 +35,8 @@ from rosgraph_msgs.msg import Clock
 from nni_msgs_adapter import contract
 from nni_battery_controller.simulate import Outcome
 from nni_msgs_adapter.mcap_io import MCAP_MAGIC, Ros2McapWriter, deserialize, qos_profiles_yaml, read_messages
-from nni_msgs_adapter.mcap_logger import COUNTS_PREFIX, DEFAULTS as LOGGER_DEFAULTS
+from nni_msgs_adapter.defaults import controller_defaults, logger_defaults, plant_defaults
+from nni_msgs_adapter.mcap_logger import COUNTS_PREFIX
 from nni_msgs_adapter.recording import RUN_METADATA_NAME, read_generator_runs
 from rosproc import NodeProcess, Probe, fresh_domain_id, node_processes, ros_env
 
@@ -47,7 +48,7 @@ LOGGER = "nni_msgs_adapter.mcap_logger"
 NNI_REPLAY = Path(sys.executable).parent / "nni-replay"
 RECORDINGS = Path(__file__).resolve().parent.parent / "recordings"
 RATE_HZ = 50.0
-FLUSH_PERIOD_S = LOGGER_DEFAULTS["flush_period_s"]
+FLUSH_PERIOD_S = logger_defaults()["flush_period_s"]
 # Receive times are taken in two processes (probe, logger) and the flush itself takes time:
 # on a loaded 2-core machine they differ by up to tens of ms; 0.25 s covers that with margin.
 RECEIVE_SKEW_S = 0.25
@@ -369,15 +370,11 @@ def test_replay_waits_for_a_subscriber_of_one_topic(wait):
 
 
 def plant_parameters() -> dict:
-    from nni_plant_sim.plant_node import DEFAULTS
-
-    return dict(DEFAULTS, mode="lockstep", duration_s=10.0, wait_for_subscribers=2)
+    return dict(plant_defaults(), mode="lockstep", duration_s=10.0, wait_for_subscribers=2)
 
 
 def controller_parameters(b: float) -> dict:
-    from nni_battery_controller.controller_node import DEFAULTS
-
-    return dict(DEFAULTS, battery_limit_pu=b)
+    return dict(controller_defaults(), battery_limit_pu=b)
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ import sys
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 
-from nni_battery_controller.controller_config import LOCKED_WHEN_ACTIVE, PARAMETERS, ControllerConfig
+from nni_battery_controller.controller_config import ControllerConfig, locked_when_active, parameters
 from nni_battery_controller.controller_core import ControllerCore
 from nni_msgs_adapter import contract
 from nni_msgs_adapter.node_main import run_node
@@ -23,8 +23,8 @@ class ControllerNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("controller", **kwargs)
-        declare(self, PARAMETERS)
-        config = ControllerConfig(current_values(self, PARAMETERS))
+        declare(self, parameters())
+        config = ControllerConfig(current_values(self, parameters()))
         self._core, self._clock_ns = ControllerCore(config), None
         # Warm the answer path once, publishing nothing. Profiled: the first pass costs ~5 ms (first JointState,
         # numpy's first calls), which sample 0 would otherwise pay as latency (above 200/s, as a deadline miss).
@@ -37,11 +37,11 @@ class ControllerNode(Node):
                                              lambda msg: setattr(self, "_clock_ns", contract.ns_from_time(msg.clock)))
         # Restarted by each measurement: it fires only on silence (profiled: one at the sample rate doubled wake-ups).
         self._stale_timer = self.create_timer(config.stale_after_s, self._check_stale)
-        install_validation(self, PARAMETERS, self._validate, self._install)
+        install_validation(self, parameters(), self._validate, self._install)
         self.create_timer(1.0, self._publish_diagnostics)
 
     def _validate(self, values: dict) -> ControllerConfig:
-        locked_changes(self._core.config.values, values, LOCKED_WHEN_ACTIVE if self._core.active else ())
+        locked_changes(self._core.config.values, values, locked_when_active() if self._core.active else ())
         return ControllerConfig(values)
 
     def _install(self, config: ControllerConfig) -> None:
