@@ -35,6 +35,7 @@ class ControllerNode(Node):
         contract.subscribe(self, contract.TOPIC_PMU, self._on_measurement)
         self._clock_sub = contract.subscribe(self, contract.TOPIC_CLOCK,
                                              lambda msg: setattr(self, "_clock_ns", contract.ns_from_time(msg.clock)))
+        contract.subscribe(self, contract.TOPIC_DIAGNOSTICS, self._on_diagnostics)
         # Restarted by each measurement: it fires only on silence (profiled: one at the sample rate doubled wake-ups).
         self._stale_timer = self.create_timer(config.stale_after_s, self._check_stale)
         install_validation(self, parameters(), self._validate, self._install)
@@ -64,8 +65,13 @@ class ControllerNode(Node):
             self._stale_timer.reset()  # bookkeeping after the answer is out: none of it changes the command
             self._state_pub.publish(contract.controller_state_message(*answer.signals()))
 
+    def _on_diagnostics(self, msg) -> None:
+        if contract.plant_run_ended(msg, self.get_namespace()) and self._core.end_of_run():
+            self.get_logger().info(f"the plant's run ended after {self._core.gate.counts['samples']} answered "
+                                   "measurements: waiting for the next run")
+
     def _check_stale(self) -> None:
-        stamp_ns = self._core.gate.silence(self.get_clock().now().nanoseconds)
+        stamp_ns = self._core.silence(self.get_clock().now().nanoseconds)
         if stamp_ns is not None:
             self._command_pub.publish(contract.command_message(stamp_ns, 0.0))
             self.get_logger().warning(f"no measurement for {self._core.config.stale_after_s:g} s: battery power set to zero")

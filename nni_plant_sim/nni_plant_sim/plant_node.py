@@ -192,7 +192,7 @@ class PlantNode(Node):
         """Publish the plant's status; returns its values."""
         level, message = self._channel.health(self._loop is not None, self._wait.text)
         values = {"mode": self._values["mode"], "sim_time_s": 0.0, "samples": 0, "run_wall_s": 0.0,
-                  "battery_power_pu": 0.0, **self._channel.summary()}
+                  "battery_power_pu": 0.0, **self._channel.summary(), contract.RUN_ENDED: self._finished_ns is not None}
         if self._loop is not None:
             values.update(self._loop.summary(), run_wall_s=((self._finished_ns or self._now_ns()) - self._t0_ns) * 1e-9)
         self._diag_pub.publish(contract.diagnostics_message(
@@ -201,6 +201,8 @@ class PlantNode(Node):
 
     def close(self) -> None:
         """Final diagnostics before the node goes (SIGINT/SIGTERM or end of run), also printed as one JSON line."""
+        if self._loop is not None and self._finished_ns is None:
+            self._finished_ns = self._now_ns()  # stopped: the run ends here, and its status says so
         print(SUMMARY_PREFIX + json.dumps(self._publish_diagnostics()), flush=True)
         if self._gave_up:
             raise SystemExit(1)  # nobody to run with (node_main returns 0 after a node's normal end)
