@@ -59,7 +59,10 @@ def test_a_run_that_reaches_its_duration_ends_at_info_with_no_zero_command(tmp_p
         probe = Probe(domain, (contract.TOPIC_PMU, contract.TOPIC_BATTERY_COMMAND))
         try:
             controller = start("controller", CONTROLLER, {"battery_limit_pu": 0.3})
-            plant = start("plant", PLANT, {"mode": mode, "duration_s": 2.0, "wait_for_subscribers": 2})
+            # Every command must reach the probe: its subscription knows the controller's writer first.
+            assert wait_until(lambda: probe.node.count_publishers("/" + contract.TOPIC_BATTERY_COMMAND) >= 1, 30.0)
+            plant = start("plant", PLANT, {"mode": mode, "duration_s": 2.0, "wait_for_subscribers": 2,
+                                           "discovery_settle_s": 0.5})
             assert plant.wait(timeout=120) == 0, plant.output()
             time.sleep(1.0)  # ten times the stale watchdog's 0.1 s
             assert controller.interrupt() == 0
