@@ -146,15 +146,15 @@ def test_launch_file_matches_the_installed_nodes(workspace):
     install and hold a default for every argument, every Node it starts resolves as ros2 run
     would, and the plant's exit is wired to a Shutdown.
     """
-    from nni_battery_controller.controller_node import PARAMETERS as CONTROLLER
-    from nni_msgs_adapter.mcap_logger import PARAMETERS as LOGGER
-    from nni_plant_sim.plant_node import PARAMETERS as PLANT
+    from nni_battery_controller.controller_node import parameters as controller
+    from nni_msgs_adapter.mcap_logger import parameters as logger
+    from nni_plant_sim.plant_node import parameters as plant
 
     install = workspace / "install"
     path = install / "nni_battery_controller" / "share" / "nni_battery_controller" / "launch" / "closed_loop.launch.py"
     tree, constants = launch_file_constants(path)
-    declared = {"plant": {s.name for s in PLANT}, "controller": {s.name for s in CONTROLLER},
-                "mcap_logger": {s.name for s in LOGGER}}
+    declared = {"plant": {s.name for s in plant()}, "controller": {s.name for s in controller()},
+                "mcap_logger": {s.name for s in logger()}}
     for names, nodes in (("PLANT_ARGUMENTS", ("plant",)), ("CONTROLLER_ARGUMENTS", ("controller",)),
                          ("MODEL_ARGUMENTS", ("plant", "controller")), ("LOGGER_ARGUMENTS", ("mcap_logger",))):
         for node in nodes:

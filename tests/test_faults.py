@@ -248,13 +248,16 @@ def test_killed_controller_times_out_to_zero_and_a_restart_recovers(tmp_path):
             start("controller2", CONTROLLER, {"battery_limit_pu": 0.3})
             assert wait_until(lambda: len(probe.take(contract.TOPIC_BATTERY_COMMAND)) > n_commands + 25, 30.0), \
                 "the restarted controller picks up the loop"
-            # The killed controller stays in the ROS graph until its DDS participant's lease runs out (Fast
-            # DDS: 20 s): until then the plant sees two writers on battery/command, raises an alarm and
-            # trusts neither (issue 11); then it pairs with the restarted one.
+            # The killed controller stays in the ROS graph until its DDS participant's lease runs out (our
+            # profiles: 5 s; Fast DDS's default, 20 s): while the restarted one is there too, the plant
+            # sees two writers on battery/command, raises an alarm and trusts neither (issue 11); then it
+            # pairs with the restarted one. Measured: paired 5.2 to 6.0 s after the kill (20.1 to 20.4 s
+            # with the default lease), 5.1 to 5.2 s beside two busy processes; this wait starts 2 to 3 s
+            # after the kill, and 15 s leaves a margin for load. The killed one may have left before the
+            # new one is up (then no alarm).
             before = int(plant_diagnostics(probe).get("commands", 0))
-            assert wait_until(lambda: int(plant_diagnostics(probe).get("commands", 0)) > before + 25, 40.0)
-            diag = plant_diagnostics(probe)
-            assert int(diag["re_pairings"]) == 1 and int(diag["writer_alarms"]) >= 1
+            assert wait_until(lambda: int(plant_diagnostics(probe).get("commands", 0)) > before + 25, 15.0)
+            assert int(plant_diagnostics(probe)["re_pairings"]) == 1
         finally:
             probe.close()
 

@@ -35,7 +35,8 @@ from rosgraph_msgs.msg import Clock
 from nni_msgs_adapter import contract
 from nni_battery_controller.simulate import Outcome
 from nni_msgs_adapter.mcap_io import MCAP_MAGIC, Ros2McapWriter, deserialize, qos_profiles_yaml, read_messages
-from nni_msgs_adapter.mcap_logger import COUNTS_PREFIX, DEFAULTS as LOGGER_DEFAULTS
+from nni_msgs_adapter.defaults import controller_defaults, logger_defaults, plant_defaults
+from nni_msgs_adapter.mcap_logger import COUNTS_PREFIX
 from nni_msgs_adapter.recording import RUN_METADATA_NAME, read_generator_runs
 from rosproc import NodeProcess, Probe, fresh_domain_id, node_processes, ros_env
 
@@ -47,7 +48,7 @@ LOGGER = "nni_msgs_adapter.mcap_logger"
 NNI_REPLAY = Path(sys.executable).parent / "nni-replay"
 RECORDINGS = Path(__file__).resolve().parent.parent / "recordings"
 RATE_HZ = 50.0
-FLUSH_PERIOD_S = LOGGER_DEFAULTS["flush_period_s"]
+FLUSH_PERIOD_S = logger_defaults()["flush_period_s"]
 # Receive times are taken in two processes (probe, logger) and the flush itself takes time:
 # on a loaded 2-core machine they differ by up to tens of ms; 0.25 s covers that with margin.
 RECEIVE_SKEW_S = 0.25
@@ -369,14 +370,10 @@ def test_replay_waits_for_a_subscriber_of_one_topic(wait):
 
 
 def plant_parameters() -> dict:
-    from nni_msgs_adapter.defaults import plant_defaults
-
     return dict(plant_defaults(), mode="lockstep", duration_s=10.0, wait_for_subscribers=2)
 
 
 def controller_parameters(b: float) -> dict:
-    from nni_msgs_adapter.defaults import controller_defaults
-
     return dict(controller_defaults(), battery_limit_pu=b)
 
 
@@ -453,8 +450,28 @@ def test_plot_draws_the_run_and_rrd_takes_f0_from_the_recording(described_run, t
     assert "records f0 = 50 Hz" in refused.stderr
 
 
+def without_metadata(source: Path, path: Path) -> Path:
+    """A copy of ``source`` with every schema, channel and message but no metadata record (as recorded before
+    the logger wrote ``nni_run``)."""
+    with source.open("rb") as stream, path.open("wb") as out:
+        reader, writer = make_reader(stream), Writer(out)
+        writer.start(profile=reader.get_header().profile, library="test")
+        schemas, channels = {}, {}
+        for schema, channel, message in reader.iter_messages():
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
+                                                               schemas[schema.id], channel.metadata)
+            writer.add_message(channels[channel.id], message.log_time, message.data, message.publish_time,
+                               message.sequence)
+        writer.finish()
+    return path
+
+
 def test_a_recording_without_parameters_is_refused_for_what_needs_them(tmp_path):
-    shipped = RECORDINGS / "paper_b0.3.mcap"
+    # The shipped recordings carry their parameters now (regenerated): this is one as they were before.
+    shipped = without_metadata(RECORDINGS / "paper_b0.3.mcap", tmp_path / "old.mcap")
     plot = subprocess.run([str(NNI_REPLAY), str(shipped), "--plot", str(tmp_path / "x.png")], capture_output=True,
                           text=True, timeout=60)
     assert_one_line_error(plot, "nni-replay")

@@ -203,8 +203,13 @@ def test_both_profiles_give_reliable_writers_the_same_settings():
         root = ET.parse(path).getroot()
         return [ET.tostring(element) for element in root if element.tag.endswith("publisher")]
 
+    def discovery(path):
+        return [ET.tostring(element) for element in ET.parse(path).getroot().iter()
+                if element.tag.endswith("discovery_config")]
+
     default, multihost = network_profile("loopback"), network_profile("multihost")
     assert publisher(default) and publisher(default) == publisher(multihost)
+    assert discovery(default) and discovery(default) == discovery(multihost), "the same participant lease"
     assert re.search(r"<address>127\.0\.0\.1</address>", default.read_text())
     assert "transport_descriptor" not in multihost.read_text()
 

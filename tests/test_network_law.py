@@ -13,7 +13,8 @@ import math
 import numpy as np
 import pytest
 
-from nni_battery_controller.controller_config import DEFAULTS, ControllerConfig
+from nni_battery_controller.controller_config import ControllerConfig
+from nni_msgs_adapter.defaults import controller_defaults
 from nni_battery_controller.controller_core import ControllerCore
 from nni_battery_controller.law import ControllerParams, SampledController, sampled_step
 from nni_battery_controller.network_sim import NetworkController, NetworkLaw, simulate_network
@@ -73,7 +74,7 @@ def test_sampled_step_is_one_formula_for_floats_and_arrays():
 
 def controller_values(**changes) -> dict:
     """The controller node's parameter values: the shipped defaults with ``changes``."""
-    return {**DEFAULTS, **changes}
+    return {**controller_defaults(), **changes}
 
 
 def test_a_controller_with_g_measured_answers_as_the_network_law_for_its_generator():

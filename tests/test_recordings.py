@@ -118,6 +118,8 @@ def test_fresh_recording_holds_what_its_logger_counted(regenerated, case):
     # Nothing lost at the end of the run: 10 s at 50/s is 500 samples and 501 states (t = 0 .. 10 s),
     # although the plant exits right after its last one (it waits for the acknowledgements).
     assert (logged["/pmu"], logged["/controller/state"], logged["/plant/state"]) == (500, 500, 501)
+    # One answer per sample and no zero command after the last: the plant said its run ended.
+    assert logged["/battery/command"] == 500
     assert file_counts(out / case) == logged
     with AnyReader([out / case]) as reader:
         assert dict(Counter(connection.topic for connection, _, _ in reader.messages())) == logged

@@ -28,7 +28,7 @@ from launch.substitutions import EnvironmentVariable, LaunchConfiguration
 from launch_ros.actions import Node
 
 from nni_msgs_adapter.processes import parameter_text
-from nni_msgs_adapter.ros_params import load_defaults
+from nni_msgs_adapter.defaults import load_defaults
 
 #: Launch arguments that are plant parameters (package nni_plant_sim, config/plant.yaml).
 PLANT_ARGUMENTS = (

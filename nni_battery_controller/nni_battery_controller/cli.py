@@ -43,6 +43,7 @@ from nni_msgs_adapter.cli_support import (
     run_cli,
     writable_output,
 )
+from nni_msgs_adapter.defaults import plant_defaults
 from nni_msgs_adapter.palette import colour_hex
 from nni_plant_sim.model import SmibParams, critical_angles_rad, invariant_set_boundary, restoring_power
 from nni_plant_sim.scenarios import TransferLimitFault
@@ -50,8 +51,6 @@ from nni_plant_sim.scenarios import TransferLimitFault
 PAPER_BATTERY_LIMITS = (0.0, 0.2, 0.3, math.inf)
 #: Output step of the continuous runs, s (as simulate_continuous's default).
 OUTPUT_STEP_S = 1e-3
-#: Largest RK4 step of the sampled runs' plant, s (as simulate_sampled's default).
-PLANT_STEP_S = 1e-3
 #: Bounds on one command's work, checked before any: samples kept (memory, ~100 B each),
 #: continuous work (duration x the loop's fastest rate, summed over the runs; 1e5 is
 #: some 10 s of integration) and sampled RK4 steps (about 2 us each).
@@ -143,7 +142,7 @@ def check_work(plant: SmibParams, ctrls, duration_s: float, rate_hz, runs_per_b:
                            f"integrator steps (limit {MAX_CONTINUOUS_WORK:g}); shorten --duration or use "
                            f"--controller-rate")
         return
-    step = min(PLANT_STEP_S, 1.0 / rate_hz)
+    step = min(plant_step_s(), 1.0 / rate_hz)
     swing = math.sqrt((abs(plant.p_max_pu) + max(ctrl.gain_l for ctrl in ctrls)) / plant.inertia_m)
     if step * swing > RK4_STABLE_STEP_RATE:
         raise CliError(f"out of reach: the swing's rate {swing:.3g}/s is too fast for the plant's {step:g} s RK4 "
@@ -153,11 +152,16 @@ def check_work(plant: SmibParams, ctrls, duration_s: float, rate_hz, runs_per_b:
         raise CliError(f"out of reach: {steps:.3g} RK4 steps (limit {MAX_RK4_STEPS:g}); shorten --duration")
 
 
+def plant_step_s() -> float:
+    """Largest RK4 step of the sampled runs' plant, s: the plant node's (``integration_step_s`` of its YAML)."""
+    return plant_defaults()["integration_step_s"]
+
+
 def simulate(plant, ctrl, scenario, duration_s, rate_hz):
     """One run of the continuous law or of the sampled law at ``rate_hz``."""
     if rate_hz is None:
         return simulate_continuous(plant, ctrl, scenario, duration_s, OUTPUT_STEP_S)
-    return simulate_sampled(plant, ctrl, scenario, duration_s, rate_hz, PLANT_STEP_S)
+    return simulate_sampled(plant, ctrl, scenario, duration_s, rate_hz, plant_step_s())
 
 
 def format_table(outcomes) -> str:

@@ -1,45 +1,57 @@
 """The controller node's parameters: declared once with unit and range, and the configuration they build.
 
-Read by :mod:`nni_battery_controller.controller_node`; the defaults live in ``config/controller.yaml``.
+Read by :mod:`nni_battery_controller.controller_node`; the defaults live in ``config/controller.yaml``,
+read on the first call of :func:`parameters` (not at import).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 from nni_battery_controller.law import ControllerParams
-from nni_msgs_adapter.ros_params import Spec, load_defaults
+from nni_msgs_adapter.defaults import controller_defaults
+from nni_msgs_adapter.ros_params import Spec
 from nni_plant_sim.model import SmibParams
 
-DEFAULTS = load_defaults("nni_battery_controller", "controller.yaml", "controller")
 
-PARAMETERS = (
-    Spec("tau_s", DEFAULTS["tau_s"], "Phase-lead time constant tau, s.", 1e-4, 100.0),
-    Spec("gain_k", DEFAULTS["gain_k"], "Gain K, pu/rad (must be < gain_l).", 1e-6, 100.0),
-    Spec("gain_l", DEFAULTS["gain_l"], "Gain L, pu/rad (must be > gain_k: stability condition K - L < 0).", 1e-6, 100.0),
-    Spec("alpha", DEFAULTS["alpha"], "Saturated-mode decay factor alpha (x3' = -(alpha/K) x3).", 1e-6, 100.0),
-    Spec("battery_limit_pu", DEFAULTS["battery_limit_pu"], "Battery power limit b, pu; .inf for unlimited, 0 for none.",
-         0.0, math.inf),
-    Spec("p_mech_pu", DEFAULTS["p_mech_pu"], "Model of the plant: pre-fault mechanical power P_M, pu.", 0.0, 1e3),
-    Spec("p_max_pu", DEFAULTS["p_max_pu"], "Model of the plant: maximum transfer P_max, pu.", 1e-6, 1e3),
-    Spec("inertia_h_s", DEFAULTS["inertia_h_s"], "Model of the plant: inertia H, s (for W_hat only).", 1e-3, 1e3),
-    Spec("f0_hz", DEFAULTS["f0_hz"], "Model of the plant: nominal frequency, Hz (for W_hat only).", 1.0, 1e3),
-    Spec("sample_rate_hz", DEFAULTS["sample_rate_hz"], "PMU reporting rate the law is discretised for, frames/s.", 10.0, 1000.0),
-    Spec("stale_after_periods", DEFAULTS["stale_after_periods"], "Measurements missing for this many periods: zero power, STALE.", 1, 10000),
-    Spec("stamp_tolerance_s", DEFAULTS["stamp_tolerance_s"], "A measurement stamped further than this from the controller's "
-         "clock (realtime: wall clock; lockstep: /clock) is implausible and dropped, s.", 1e-3, 1e6),
-    Spec("reanchor_after", DEFAULTS["reanchor_after"], "After this many consecutive stamp rejections, follow the stream's "
-         "clock (re-anchor, reset the law) instead of locking out.", 1, 100000),
-    Spec("restoring_power", DEFAULTS["restoring_power"], "Where g comes from: model (the SMIB's g(d) from P_M, P_max) or "
-         "measured (a generator in a network: g = p_mech_pu - the electrical power its PMU measured).",
-         choices=("model", "measured")),
-    Spec("reference_angle_rad", DEFAULTS["reference_angle_rad"], "restoring_power measured: the generator's pre-fault "
-         "angle, rad, that d is measured from (.inf, the default: not set, for model: delta_bar = asin(P_M/P_max))."),
-)
+@functools.cache
+def parameters() -> tuple[Spec, ...]:
+    """The controller's parameters, their defaults from ``config/controller.yaml`` (read once, on first use)."""
+    defaults = controller_defaults()
+    return (
+        Spec("tau_s", defaults["tau_s"], "Phase-lead time constant tau, s.", 1e-4, 100.0),
+        Spec("gain_k", defaults["gain_k"], "Gain K, pu/rad (must be < gain_l).", 1e-6, 100.0),
+        Spec("gain_l", defaults["gain_l"], "Gain L, pu/rad (must be > gain_k: stability condition K - L < 0).", 1e-6, 100.0),
+        Spec("alpha", defaults["alpha"], "Saturated-mode decay factor alpha (x3' = -(alpha/K) x3).", 1e-6, 100.0),
+        Spec("battery_limit_pu", defaults["battery_limit_pu"], "Battery power limit b, pu; .inf for unlimited, 0 for none.",
+             0.0, math.inf),
+        Spec("p_mech_pu", defaults["p_mech_pu"], "Model of the plant: pre-fault mechanical power P_M, pu.", 0.0, 1e3),
+        Spec("p_max_pu", defaults["p_max_pu"], "Model of the plant: maximum transfer P_max, pu.", 1e-6, 1e3),
+        Spec("inertia_h_s", defaults["inertia_h_s"], "Model of the plant: inertia H, s (for W_hat only).", 1e-3, 1e3),
+        Spec("f0_hz", defaults["f0_hz"], "Model of the plant: nominal frequency, Hz (for W_hat only).", 1.0, 1e3),
+        Spec("sample_rate_hz", defaults["sample_rate_hz"], "PMU reporting rate the law is discretised for, frames/s.", 10.0, 1000.0),
+        Spec("stale_after_periods", defaults["stale_after_periods"], "Measurements missing for this many periods: zero power, STALE.", 1, 10000),
+        Spec("stamp_tolerance_s", defaults["stamp_tolerance_s"], "A measurement stamped further than this from the controller's "
+             "clock (realtime: wall clock; lockstep: /clock) is implausible and dropped, s.", 1e-3, 1e6),
+        Spec("reanchor_after", defaults["reanchor_after"], "After this many consecutive stamp rejections, follow the stream's "
+             "clock (re-anchor, reset the law) instead of locking out.", 1, 100000),
+        Spec("restoring_power", defaults["restoring_power"], "Where g comes from: model (the SMIB's g(d) from P_M, P_max) or "
+             "measured (a generator in a network: g = p_mech_pu - the electrical power its PMU measured).",
+             choices=("model", "measured")),
+        Spec("reference_angle_rad", defaults["reference_angle_rad"], "restoring_power measured: the generator's pre-fault "
+             "angle, rad, that d is measured from (.inf, the default: not set, for model: delta_bar = asin(P_M/P_max))."),
+    )
+
+
 #: Live-tunable while running (validated, K < L): the law's gains. Everything else is locked once the
 #: controller answers measurements: the limit b, the plant model, the rate and the input gate's bounds.
 TUNABLE = ("tau_s", "gain_k", "gain_l", "alpha")
-LOCKED_WHEN_ACTIVE = tuple(spec.name for spec in PARAMETERS if spec.name not in TUNABLE)
+
+
+def locked_when_active() -> tuple[str, ...]:
+    """The parameters locked once the controller answers measurements: all but :data:`TUNABLE`."""
+    return tuple(spec.name for spec in parameters() if spec.name not in TUNABLE)
 
 
 class ControllerConfig:

@@ -85,6 +85,8 @@ class ControllerCore:
         self._configure(config)
         self.law = SampledController(config.plant, config.ctrl, config.period_s)
         self.gate = InputGate(*config.gate_bounds)
+        #: The plant said its run has ended, and no measurement came since: the silence is no fault.
+        self.run_ended = False
 
     def _configure(self, config) -> None:
         self._reference_rad = reference_angle(config.values, config.plant)
@@ -114,6 +116,7 @@ class ControllerCore:
         verdict = self.gate.check(stamp_ns, delta_rad, speed_rad_s, reference_ns, arrival_ns)
         if not verdict.accepted:
             return None
+        self.run_ended = False
         if verdict.resets:  # the law's state no longer describes the plant: restart from steady state
             self.law.reset()
         angle_dev, x3 = delta_rad - self._reference_rad, self.law.x3
@@ -122,3 +125,13 @@ class ControllerCore:
             return Answer(stamp_ns, power, angle_dev, speed_rad_s, x3, w, saturated, None, self.config.ctrl)
         power, w, saturated = self.law.step(angle_dev)
         return Answer(stamp_ns, power, angle_dev, speed_rad_s, x3, w, saturated, self.config.plant, self.config.ctrl)
+
+    def end_of_run(self) -> bool:
+        """The plant says its run has ended; True if that is news (a run was going on and had not ended)."""
+        news = self.active and not self.run_ended and not self.gate.stale
+        self.run_ended = True
+        return news
+
+    def silence(self, wall_ns: int) -> int | None:
+        """A stale episode starts: the stamp of the zero command to send, else None (also after a normal end)."""
+        return None if self.run_ended else self.gate.silence(wall_ns)

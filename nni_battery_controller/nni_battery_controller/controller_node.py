@@ -12,7 +12,7 @@ import sys
 from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 
-from nni_battery_controller.controller_config import LOCKED_WHEN_ACTIVE, PARAMETERS, ControllerConfig
+from nni_battery_controller.controller_config import ControllerConfig, locked_when_active, parameters
 from nni_battery_controller.controller_core import ControllerCore, reference_angle
 from nni_msgs_adapter import contract
 from nni_msgs_adapter.node_main import run_node
@@ -24,8 +24,8 @@ class ControllerNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("controller", **kwargs)
-        declare(self, PARAMETERS)
-        config = ControllerConfig(current_values(self, PARAMETERS))
+        declare(self, parameters())
+        config = ControllerConfig(current_values(self, parameters()))
         self._core, self._clock_ns = ControllerCore(config), None
         # Warm the answer path once, publishing nothing. Profiled: the first pass costs ~5 ms (first JointState,
         # numpy's first calls), which sample 0 would otherwise pay as latency (above 200/s, as a deadline miss).
@@ -36,13 +36,14 @@ class ControllerNode(Node):
         contract.subscribe(self, contract.TOPIC_PMU, self._on_measurement)
         self._clock_sub = contract.subscribe(self, contract.TOPIC_CLOCK,
                                              lambda msg: setattr(self, "_clock_ns", contract.ns_from_time(msg.clock)))
+        contract.subscribe(self, contract.TOPIC_DIAGNOSTICS, self._on_diagnostics)
         # Restarted by each measurement: it fires only on silence (profiled: one at the sample rate doubled wake-ups).
         self._stale_timer = self.create_timer(config.stale_after_s, self._check_stale)
-        install_validation(self, PARAMETERS, self._validate, self._install)
+        install_validation(self, parameters(), self._validate, self._install)
         self.create_timer(1.0, self._publish_diagnostics)
 
     def _validate(self, values: dict) -> ControllerConfig:
-        locked_changes(self._core.config.values, values, LOCKED_WHEN_ACTIVE if self._core.active else ())
+        locked_changes(self._core.config.values, values, locked_when_active() if self._core.active else ())
         config = ControllerConfig(values)
         reference_angle(values, config.plant)
         return config
@@ -70,8 +71,13 @@ class ControllerNode(Node):
             self._stale_timer.reset()  # bookkeeping after the answer is out: none of it changes the command
             self._state_pub.publish(contract.controller_state_message(*answer.signals()))
 
+    def _on_diagnostics(self, msg) -> None:
+        if contract.plant_run_ended(msg, self.get_namespace()) and self._core.end_of_run():
+            self.get_logger().info(f"the plant's run ended after {self._core.gate.counts['samples']} answered "
+                                   "measurements: waiting for the next run")
+
     def _check_stale(self) -> None:
-        stamp_ns = self._core.gate.silence(self.get_clock().now().nanoseconds)
+        stamp_ns = self._core.silence(self.get_clock().now().nanoseconds)
         if stamp_ns is not None:
             self._command_pub.publish(contract.command_message(stamp_ns, 0.0))
             self.get_logger().warning(f"no measurement for {self._core.config.stale_after_s:g} s: battery power set to zero")

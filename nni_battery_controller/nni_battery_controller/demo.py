@@ -78,7 +78,9 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--b", type=battery_limit, nargs="+", default=list(PAPER_BATTERY_LIMITS), metavar="B",
                         help="battery limits in pu, one run each (default: 0 0.2 0.3 inf)")
     parser.add_argument("--duration", type=positive_float, default=10.0, help="simulated seconds per run (default: 10)")
-    parser.add_argument("--rate", type=float_within(10.0, 1000.0, "frames/s"), default=50.0, help="PMU reporting rate, frames/s (default 50)")
+    rate = plant_defaults()["pmu_rate_hz"]
+    parser.add_argument("--rate", type=float_within(10.0, 1000.0, "frames/s"), default=rate,
+                        help=f"PMU reporting rate, frames/s (default: {rate:g})")
     parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder, created (default: out/demo)")
     parser.add_argument("--rerun", nargs="+", metavar=("SINK", "PATH"), default=None,
                         help="stream the runs live to Rerun: 'save PATH' (.rrd), 'serve' (web viewer on this "
@@ -159,16 +161,16 @@ def rerun_sink(words) -> dict:
     return {"sink": sink}
 
 
-def start_viewer(viewer: Supervisor, sink: dict):
+def start_viewer(viewer: Supervisor, sink: dict, f0_hz: float):
     """Start the Rerun bridge (and for ``serve`` the web viewer it streams to); return the bridge."""
-    params = dict(sink)
+    params = {**sink, "f0_hz": f0_hz}
     if sink["sink"] == "serve":
         # The SDK's own server listens on every interface; the rerun CLI's binds where it is told.
         host = sink["address"]
         viewer.start("rerun_viewer", [str(Path(sys.executable).parent / "rerun"), "--serve-web", "--bind", host,
                                       "--port", str(SERVE_GRPC_PORT), "--web-viewer-port", str(SERVE_WEB_PORT)])
         proxy = f"rerun+http://{host}:{SERVE_GRPC_PORT}/proxy"
-        params = {"sink": "connect", "url": proxy}
+        params = {"sink": "connect", "url": proxy, "f0_hz": f0_hz}
         wait_for_port(viewer["rerun_viewer"], host, SERVE_GRPC_PORT)
         print(f"Rerun web viewer: http://{host}:{SERVE_WEB_PORT}/?url={urllib.parse.quote(proxy, safe='')}",
               flush=True)
@@ -398,7 +400,7 @@ def main(argv=None) -> int:
         print(f"nni-demo: {args.mode}, {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}")
         print(f"  {args.model.header()}")
         with Supervisor(env, args.out) as viewer:
-            bridge = start_viewer(viewer, sink) if sink else None
+            bridge = start_viewer(viewer, sink, args.model.plant["f0_hz"]) if sink else None
             runs, trajectories = run_all(args, env, bridge)
             if sink and sink["sink"] == "serve":
                 print("serving the Rerun stream; Ctrl-C to stop", flush=True)

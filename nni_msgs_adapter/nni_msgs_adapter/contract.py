@@ -24,7 +24,11 @@ Mapping (see README, "Topics"):
 * ``/diagnostics`` diagnostic_msgs/DiagnosticArray: loop health and counters. Absolute, as ROS
   tools (diagnostic aggregator, rqt_robot_monitor) expect: one topic for every generator, the
   generator's namespace in each status's name (``gen1/plant``; ``plant`` in the root namespace)
-  and its hardware_id (the node's fully qualified name, ``/gen1/plant``).
+  and its hardware_id (the node's fully qualified name, ``/gen1/plant``). The plant's status
+  carries ``run_ended`` (:data:`RUN_ENDED`): ``True`` once its run has ended normally (its
+  duration reached, or the plant stopped), published at that instant; no measurement follows.
+  The silence after it is no loss of data: the controller logs it at INFO and commands nothing
+  (:func:`plant_run_ended`).
 * ``/clock`` rosgraph_msgs/Clock in lockstep mode (absolute: one simulated clock).
 * ``plant/start_fault`` std_srvs/Trigger service: start the fault scenario now.
 """
@@ -282,6 +286,22 @@ def diagnostic_values(msg: DiagnosticArray, name: str) -> dict | None:
         if status.name == name:
             return {kv.key: kv.value for kv in status.values}
     return None
+
+
+#: The plant's diagnostics key that says its run has ended normally ("True"; "False" before and during it).
+RUN_ENDED = "run_ended"
+
+
+def plant_run_ended(msg: DiagnosticArray, namespace: str) -> bool:
+    """The plant of ``namespace`` (``/`` or ``/gen1``, as Node.get_namespace) says here that its run has ended.
+
+    Anyone can publish on ``/diagnostics``: a false notice only spares the controller its
+    stand-down for the silence that follows it directly (the next measurement cancels it); the
+    battery still goes to zero through the plant's own command timeouts.
+    """
+    namespace = namespace.strip("/")
+    values = diagnostic_values(msg, f"{namespace}/plant" if namespace else "plant")
+    return values is not None and values.get(RUN_ENDED) == "True"
 
 
 def _format_value(value) -> str:

@@ -59,3 +59,8 @@ def plant_defaults() -> dict:
 def controller_defaults() -> dict:
     """The controller node's defaults (``nni_battery_controller/config/controller.yaml``)."""
     return load_defaults("nni_battery_controller", "controller.yaml", "controller")
+
+
+def logger_defaults() -> dict:
+    """The MCAP logger's defaults (``nni_msgs_adapter/config/mcap_logger.yaml``)."""
+    return load_defaults("nni_msgs_adapter", "mcap_logger.yaml", "mcap_logger")

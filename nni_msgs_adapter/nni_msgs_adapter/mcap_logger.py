@@ -31,6 +31,7 @@ stays readable as an incomplete recording up to its last flush.
 
 from __future__ import annotations
 
+import functools
 import json
 import struct
 import sys
@@ -42,25 +43,29 @@ from rclpy.node import Node
 from rclpy.task import Future
 
 from nni_msgs_adapter import contract
+from nni_msgs_adapter.defaults import logger_defaults
 from nni_msgs_adapter.mcap_io import (
     OfferedQos, RecordingError, Ros2McapWriter, WriteFailure, qos_profiles_yaml, read_recording,
 )
 from nni_msgs_adapter.node_main import run_node
 from nni_msgs_adapter.recording import RUN_METADATA_NAME, split_topic
-from nni_msgs_adapter.ros_params import Spec, load_defaults, current_values, declare
+from nni_msgs_adapter.ros_params import Spec, current_values, declare
 
-DEFAULTS = load_defaults("nni_msgs_adapter", "mcap_logger.yaml", "mcap_logger")
+@functools.cache
+def parameters() -> tuple[Spec, ...]:
+    """The logger's parameters, their defaults from ``config/mcap_logger.yaml`` (read once, on first use)."""
+    defaults = logger_defaults()
+    return (
+        Spec("output_path", defaults["output_path"], "MCAP file to write; empty: nni_<date>_<time>.mcap in the working directory.",
+             read_only=True),
+        Spec("flush_period_s", defaults["flush_period_s"], "Longest time a received message waits before it is in the file, s.",
+             0.01, 10.0, read_only=True),
+        Spec("discovery_period_s", defaults["discovery_period_s"], "How often the graph is scanned for new topics, s.", 0.05, 60.0,
+             read_only=True),
+        Spec("run_metadata", defaults["run_metadata"], "The run's parameters, a JSON object, written as the MCAP metadata "
+             f"record {RUN_METADATA_NAME!r} (each top-level key -> its JSON text); empty: none.", read_only=True),
+    )
 
-PARAMETERS = (
-    Spec("output_path", DEFAULTS["output_path"], "MCAP file to write; empty: nni_<date>_<time>.mcap in the working directory.",
-         read_only=True),
-    Spec("flush_period_s", DEFAULTS["flush_period_s"], "Longest time a received message waits before it is in the file, s.",
-         0.01, 10.0, read_only=True),
-    Spec("discovery_period_s", DEFAULTS["discovery_period_s"], "How often the graph is scanned for new topics, s.", 0.05, 60.0,
-         read_only=True),
-    Spec("run_metadata", DEFAULTS["run_metadata"], "The run's parameters, a JSON object, written as the MCAP metadata "
-         f"record {RUN_METADATA_NAME!r} (each top-level key -> its JSON text); empty: none.", read_only=True),
-)
 
 #: Prefix of the JSON line with per-topic counts printed at exit.
 COUNTS_PREFIX = "mcap_logger counts: "
@@ -103,8 +108,8 @@ class McapLogger(Node):
 
     def __init__(self, **kwargs):
         super().__init__("mcap_logger", **kwargs)
-        declare(self, PARAMETERS)
-        values = current_values(self, PARAMETERS)
+        declare(self, parameters())
+        values = current_values(self, parameters())
         metadata = run_metadata_record(values["run_metadata"])
         path = Path(values["output_path"] or datetime.now().strftime("nni_%Y%m%d_%H%M%S.mcap"))
         if not path.parent.is_dir():

@@ -12,7 +12,7 @@ parameters print one line naming the problem and exit 2.
 
 Before ROS starts:
 
-- ``--help`` prints the node's usage and parameters (its module's ``PARAMETERS``
+- ``--help`` prints the node's usage and parameters (its module's ``parameters()``
   table) and exits 0, starting nothing; any other argument outside
   ``--ros-args`` is refused with one line, exit 2.
 - The DDS network (issue 11, attack 7): every participant binds to loopback
@@ -47,7 +47,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
 from nni_msgs_adapter.cli_support import EXIT_USAGE
-from nni_msgs_adapter.ros_params import config_path
+from nni_msgs_adapter.defaults import config_path
 
 #: Longest wait inside the executor, s: how soon a signal is noticed.
 _SIGNAL_POLL_S = 0.05
@@ -204,12 +204,13 @@ def _rcl_reason(rcl_error: str) -> str:
 def help_text(factory, prog: str) -> str:
     """Usage of a node: its module's summary, its parameters with defaults, and the environment it reads.
 
-    The parameters are the ``PARAMETERS`` table (ros_params.Spec) of the module
-    that defines ``factory``; the defaults shown are those the node starts with.
+    The parameters are the table (ros_params.Spec) that ``parameters()`` of the module
+    that defines ``factory`` returns; the defaults shown are those the node starts with
+    (read from its config file only now, not when the module was imported).
     """
     module = sys.modules.get(getattr(factory, "__module__", ""), None)
     summary = ((getattr(module, "__doc__", None) or "").strip().split("\n\n") or [""])[0]
-    specs = getattr(module, "PARAMETERS", ())
+    specs = module.parameters() if hasattr(module, "parameters") else ()
     lines = [f"usage: {prog} [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r __ns:=/NAMESPACE]]",
              "", *textwrap.wrap(" ".join(summary.split()), _HELP_WIDTH), ""]
     if specs:

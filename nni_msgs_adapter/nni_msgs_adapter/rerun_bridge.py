@@ -30,6 +30,7 @@ display).
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import sys
@@ -38,18 +39,23 @@ import numpy as np
 from rclpy.node import Node
 
 from nni_msgs_adapter import contract
+from nni_msgs_adapter.defaults import plant_defaults
 from nni_msgs_adapter.node_main import run_node
 from nni_msgs_adapter.ros_params import Spec, check_choices, current_values, declare
 from nni_msgs_adapter.palette import colour_rgb
 from nni_msgs_adapter.rerun_view import APP_ID, LiveLogger, open_recording
 
-PARAMETERS = (
-    Spec("sink", "save", "Where the stream goes.", choices=("save", "serve", "spawn", "connect"), read_only=True),
-    Spec("path", "live.rrd", "Output .rrd file for sink=save.", read_only=True),
-    Spec("url", "rerun+http://127.0.0.1:9876/proxy", "Viewer or server to stream to for sink=connect.",
-         read_only=True),
-    Spec("f0_hz", 50.0, "Nominal frequency, Hz (frequency deviation = speed / 2 pi).", 1.0, 1e3, read_only=True),
-)
+@functools.cache
+def parameters() -> tuple[Spec, ...]:
+    """The bridge's parameters; f0's default is the plant's (``nni_plant_sim/config/plant.yaml``, read on first use)."""
+    return (
+        Spec("sink", "save", "Where the stream goes.", choices=("save", "serve", "spawn", "connect"), read_only=True),
+        Spec("path", "live.rrd", "Output .rrd file for sink=save.", read_only=True),
+        Spec("url", "rerun+http://127.0.0.1:9876/proxy", "Viewer or server to stream to for sink=connect.",
+             read_only=True),
+        Spec("f0_hz", plant_defaults()["f0_hz"], "Nominal frequency, Hz (frequency deviation = speed / 2 pi).", 1.0, 1e3, read_only=True),
+    )
+
 
 #: Logged once the subscriptions exist; nni-demo waits for it before the first run.
 READY_TEXT = "rerun bridge ready"
@@ -93,9 +99,9 @@ class RerunBridge(Node):
 
     def __init__(self, **kwargs):
         super().__init__("rerun_bridge", **kwargs)
-        declare(self, PARAMETERS)
-        values = current_values(self, PARAMETERS)
-        check_choices(values, PARAMETERS)
+        declare(self, parameters())
+        values = current_values(self, parameters())
+        check_choices(values, parameters())
         sink = (values["sink"], {"save": values["path"], "connect": values["url"]}.get(values["sink"]))
         self._recording, url = open_recording(APP_ID, sink)
         if url:

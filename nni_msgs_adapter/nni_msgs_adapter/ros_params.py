@@ -13,8 +13,6 @@ from dataclasses import dataclass
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 
-from nni_msgs_adapter.defaults import config_path, load_defaults  # noqa: F401 - re-exported for the nodes
-
 
 @dataclass(frozen=True)
 class Spec:

@@ -71,6 +71,11 @@ PARAMETERS = (
 )
 
 
+def parameters() -> tuple:
+    """The node's parameter table (what ``--help`` lists)."""
+    return PARAMETERS
+
+
 #: The parameters of a bus fault only: given (not at their default) with another scenario, they are refused.
 BUS_FAULT_ONLY = ("fault_bus", "fault_r", "fault_x", "clearing_time")
 

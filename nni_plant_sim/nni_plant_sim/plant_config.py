@@ -1,57 +1,66 @@
 """The plant node's parameters: declared once with unit and range, and what they build.
 
-Read by :mod:`nni_plant_sim.plant_node`; the defaults live in ``config/plant.yaml``.
+Read by :mod:`nni_plant_sim.plant_node`; the defaults live in ``config/plant.yaml``, read on the
+first call of :func:`parameters` (not at import).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
-from nni_msgs_adapter.ros_params import Spec, load_defaults
+from nni_msgs_adapter.defaults import plant_defaults
+from nni_msgs_adapter.ros_params import Spec
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.scenarios import SCENARIOS
 
-DEFAULTS = load_defaults("nni_plant_sim", "plant.yaml", "plant")
 
-PARAMETERS = (
-    Spec("mode", DEFAULTS["mode"], "Time mode: realtime (wall clock) or lockstep (simulated /clock).",
-         choices=("realtime", "lockstep")),
-    Spec("pmu_rate_hz", DEFAULTS["pmu_rate_hz"], "PMU reporting rate, frames/s (IEEE C37.118 practice: 10 to 1000).", 10.0, 1000.0),
-    Spec("integration_step_s", DEFAULTS["integration_step_s"], "Largest RK4 step of the swing equation, s.", 1e-6, 0.1),
-    Spec("duration_s", DEFAULTS["duration_s"], "Simulated seconds to run after the start, then exit; 0 runs until stopped.",
-         0.0, 1e9),
-    Spec("fault_at_start", DEFAULTS["fault_at_start"], "Start the fault scenario at t = 0; false waits for plant/start_fault."),
-    Spec("wait_for_subscribers", DEFAULTS["wait_for_subscribers"], "Start only when this many subscribers listen on pmu "
-         "(the controller, the logger) and a controller publishes on battery/command; 0 starts at once.", 0, 100),
-    Spec("wait_timeout_s", DEFAULTS["wait_timeout_s"], "Give up (error, non-zero exit) after waiting this long for them, s.",
-         0.1, 1e6),
-    Spec("discovery_settle_s", DEFAULTS["discovery_settle_s"], "Once the subscribers are there, wait this long so that every other "
-         "endpoint of theirs has matched too (DDS discovery), s.", 0.0, 10.0),
-    Spec("inertia_h_s", DEFAULTS["inertia_h_s"], "Inertia constant H, s.", 1e-3, 1e3),
-    Spec("damping_pu", DEFAULTS["damping_pu"], "Damping D, pu power per rad/s.", 0.0, 1e3),
-    Spec("p_mech_pu", DEFAULTS["p_mech_pu"], "Pre-fault mechanical power P_M, pu (< P_max).", 0.0, 1e3),
-    Spec("p_max_pu", DEFAULTS["p_max_pu"], "Maximum transfer P_max, pu.", 1e-6, 1e3),
-    Spec("f0_hz", DEFAULTS["f0_hz"], "Nominal frequency f0, Hz.", 1.0, 1e3),
-    Spec("scenario", DEFAULTS["scenario"], "Fault scenario.", choices=tuple(SCENARIOS)),
-    Spec("delta0_rad", DEFAULTS["delta0_rad"], "initial_angle: rotor angle right after the fault, rad.", -10.0, 10.0),
-    Spec("speed0_rad_s", DEFAULTS["speed0_rad_s"], "initial_angle: speed deviation right after the fault, rad/s.", -1e3, 1e3),
-    Spec("step_p_mech_pu", DEFAULTS["step_p_mech_pu"], "mechanical_step: mechanical power during the step, pu.", 0.0, 1e3),
-    Spec("step_duration_s", DEFAULTS["step_duration_s"], "mechanical_step: length of the step, s (.inf: for good).", 1e-6, math.inf),
-    Spec("fault_p_max_pu", DEFAULTS["fault_p_max_pu"], "transfer_limit_fault: P_max while the fault is on, pu.", 0.0, 1e3),
-    Spec("clearing_time_s", DEFAULTS["clearing_time_s"], "transfer_limit_fault: clearing time, s.", 1e-6, 1e3),
-    Spec("battery_rating_pu", DEFAULTS["battery_rating_pu"], "Battery inverter rating: commands are clipped to +-rating, pu.",
-         0.0, 1e3),
-    Spec("noise_angle_std_rad", DEFAULTS["noise_angle_std_rad"], "PMU angle noise standard deviation, rad.", 0.0, 1.0),
-    Spec("noise_speed_std_rad_s", DEFAULTS["noise_speed_std_rad_s"], "PMU speed noise standard deviation, rad/s.", 0.0, 10.0),
-    Spec("quantisation_rad", DEFAULTS["quantisation_rad"], "PMU angle resolution, rad (0: none).", 0.0, 1.0),
-    Spec("noise_seed", DEFAULTS["noise_seed"], "Seed of the measurement noise generator.", 0, 2**31 - 1),
-    Spec("command_timeout_s", DEFAULTS["command_timeout_s"], "realtime: a battery command older than this (from its "
-         "measurement's instant) is dropped, and the one in force decays to zero, s.", 1e-3, 100.0),
-    Spec("lockstep_timeout_s", DEFAULTS["lockstep_timeout_s"], "lockstep: wall time to wait for a command before applying zero, s.",
-         1e-3, 100.0),
-)
-#: Every plant parameter shapes time, the physics, the sensor or the limits: all are locked during a run.
-LOCKED_DURING_RUN = tuple(spec.name for spec in PARAMETERS)
+@functools.cache
+def parameters() -> tuple[Spec, ...]:
+    """The plant's parameters, their defaults from ``config/plant.yaml`` (read once, on first use)."""
+    defaults = plant_defaults()
+    return (
+        Spec("mode", defaults["mode"], "Time mode: realtime (wall clock) or lockstep (simulated /clock).",
+             choices=("realtime", "lockstep")),
+        Spec("pmu_rate_hz", defaults["pmu_rate_hz"], "PMU reporting rate, frames/s (IEEE C37.118 practice: 10 to 1000).", 10.0, 1000.0),
+        Spec("integration_step_s", defaults["integration_step_s"], "Largest RK4 step of the swing equation, s.", 1e-6, 0.1),
+        Spec("duration_s", defaults["duration_s"], "Simulated seconds to run after the start, then exit; 0 runs until stopped.",
+             0.0, 1e9),
+        Spec("fault_at_start", defaults["fault_at_start"], "Start the fault scenario at t = 0; false waits for plant/start_fault."),
+        Spec("wait_for_subscribers", defaults["wait_for_subscribers"], "Start only when this many subscribers listen on pmu "
+             "(the controller, the logger) and a controller publishes on battery/command; 0 starts at once.", 0, 100),
+        Spec("wait_timeout_s", defaults["wait_timeout_s"], "Give up (error, non-zero exit) after waiting this long for them, s.",
+             0.1, 1e6),
+        Spec("discovery_settle_s", defaults["discovery_settle_s"], "Once the subscribers are there, wait this long so that every other "
+             "endpoint of theirs has matched too (DDS discovery), s.", 0.0, 10.0),
+        Spec("inertia_h_s", defaults["inertia_h_s"], "Inertia constant H, s.", 1e-3, 1e3),
+        Spec("damping_pu", defaults["damping_pu"], "Damping D, pu power per rad/s.", 0.0, 1e3),
+        Spec("p_mech_pu", defaults["p_mech_pu"], "Pre-fault mechanical power P_M, pu (< P_max).", 0.0, 1e3),
+        Spec("p_max_pu", defaults["p_max_pu"], "Maximum transfer P_max, pu.", 1e-6, 1e3),
+        Spec("f0_hz", defaults["f0_hz"], "Nominal frequency f0, Hz.", 1.0, 1e3),
+        Spec("scenario", defaults["scenario"], "Fault scenario.", choices=tuple(SCENARIOS)),
+        Spec("delta0_rad", defaults["delta0_rad"], "initial_angle: rotor angle right after the fault, rad.", -10.0, 10.0),
+        Spec("speed0_rad_s", defaults["speed0_rad_s"], "initial_angle: speed deviation right after the fault, rad/s.", -1e3, 1e3),
+        Spec("step_p_mech_pu", defaults["step_p_mech_pu"], "mechanical_step: mechanical power during the step, pu.", 0.0, 1e3),
+        Spec("step_duration_s", defaults["step_duration_s"], "mechanical_step: length of the step, s (.inf: for good).", 1e-6, math.inf),
+        Spec("fault_p_max_pu", defaults["fault_p_max_pu"], "transfer_limit_fault: P_max while the fault is on, pu.", 0.0, 1e3),
+        Spec("clearing_time_s", defaults["clearing_time_s"], "transfer_limit_fault: clearing time, s.", 1e-6, 1e3),
+        Spec("battery_rating_pu", defaults["battery_rating_pu"], "Battery inverter rating: commands are clipped to +-rating, pu.",
+             0.0, 1e3),
+        Spec("noise_angle_std_rad", defaults["noise_angle_std_rad"], "PMU angle noise standard deviation, rad.", 0.0, 1.0),
+        Spec("noise_speed_std_rad_s", defaults["noise_speed_std_rad_s"], "PMU speed noise standard deviation, rad/s.", 0.0, 10.0),
+        Spec("quantisation_rad", defaults["quantisation_rad"], "PMU angle resolution, rad (0: none).", 0.0, 1.0),
+        Spec("noise_seed", defaults["noise_seed"], "Seed of the measurement noise generator.", 0, 2**31 - 1),
+        Spec("command_timeout_s", defaults["command_timeout_s"], "realtime: a battery command older than this (from its "
+             "measurement's instant) is dropped, and the one in force decays to zero, s.", 1e-3, 100.0),
+        Spec("lockstep_timeout_s", defaults["lockstep_timeout_s"], "lockstep: wall time to wait for a command before applying zero, s.",
+             1e-3, 100.0),
+    )
+
+
+def locked_during_run() -> tuple[str, ...]:
+    """Every plant parameter shapes time, the physics, the sensor or the limits: all are locked during a run."""
+    return tuple(spec.name for spec in parameters())
 
 
 def plant_from(values: dict) -> SmibParams:

@@ -23,7 +23,7 @@ from nni_msgs_adapter.node_main import run_node
 from nni_msgs_adapter.ros_params import check_choices, current_values, declare, install_validation, locked_changes
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.model import electrical_power, invariant_set_boundary
-from nni_plant_sim.plant_config import LOCKED_DURING_RUN, PARAMETERS, plant_from
+from nni_plant_sim.plant_config import locked_during_run, parameters, plant_from
 from nni_plant_sim.scenarios import from_values
 from nni_plant_sim.reporting import CommandChannel, LockstepStepper, PmuSensor, RealtimeReporter, SubscriberWait
 from nni_plant_sim.scenarios import PRE_FAULT, StartingAt
@@ -37,11 +37,11 @@ class PlantNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("plant", **kwargs)
-        declare(self, PARAMETERS)
-        values = current_values(self, PARAMETERS)
-        check_choices(values, PARAMETERS)
+        declare(self, parameters())
+        values = current_values(self, parameters())
+        check_choices(values, parameters())
         self._configure(values)
-        install_validation(self, PARAMETERS, self._validate, self._configure)
+        install_validation(self, parameters(), self._validate, self._configure)
         self._lockstep, self.done, self._scenario = values["mode"] == "lockstep", Future(), PRE_FAULT
         self._loop = None  # the reporting core, from the start of the run
         self._wait = SubscriberWait(values["wait_for_subscribers"], values["discovery_settle_s"],
@@ -67,7 +67,7 @@ class PlantNode(Node):
 
     def _validate(self, values: dict) -> dict:
         if self._loop is not None:
-            locked_changes(self._values, values, LOCKED_DURING_RUN)
+            locked_changes(self._values, values, locked_during_run())
         locked_changes(self._values, values, ("mode",), "once the node is up (it chose its publishers)")
         plant_from(values), from_values(values)
         return values
@@ -192,7 +192,7 @@ class PlantNode(Node):
         """Publish the plant's status; returns its values."""
         level, message = self._channel.health(self._loop is not None, self._wait.text)
         values = {"mode": self._values["mode"], "sim_time_s": 0.0, "samples": 0, "run_wall_s": 0.0,
-                  "battery_power_pu": 0.0, **self._channel.summary()}
+                  "battery_power_pu": 0.0, **self._channel.summary(), contract.RUN_ENDED: self._finished_ns is not None}
         if self._loop is not None:
             values.update(self._loop.summary(), run_wall_s=((self._finished_ns or self._now_ns()) - self._t0_ns) * 1e-9)
         self._diag_pub.publish(contract.diagnostics_message(
@@ -201,6 +201,8 @@ class PlantNode(Node):
 
     def close(self) -> None:
         """Final diagnostics before the node goes (SIGINT/SIGTERM or end of run), also printed as one JSON line."""
+        if self._loop is not None and self._finished_ns is None:
+            self._finished_ns = self._now_ns()  # stopped: the run ends here, and its status says so
         print(SUMMARY_PREFIX + json.dumps(self._publish_diagnostics()), flush=True)
         if self._gave_up:
             raise SystemExit(1)  # nobody to run with (node_main returns 0 after a node's normal end)

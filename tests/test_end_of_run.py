@@ -1,0 +1,116 @@
+"""No WARN at a normal end of run (issue 10 section 6), over real processes.
+
+The plant's status on ``/diagnostics`` says ``run_ended`` at the instant its run
+ends (duration reached, or the plant stopped): the controller then logs the end
+at INFO and commands nothing. A plant that vanishes without saying so (killed)
+is a real loss of data: the controller warns and commands zero, as before.
+Both with two busy processes beside the run (the notice races the controller's
+stale watchdog, 5 periods).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import pytest
+
+from nni_msgs_adapter import contract
+from rosproc import Probe, fresh_domain_id, node_processes
+
+pytestmark = pytest.mark.ros
+
+PLANT = "nni_plant_sim.plant_node"
+CONTROLLER = "nni_battery_controller.controller_node"
+STALE_WARNING = "no measurement for"
+END_INFO = "the plant's run ended"
+
+
+@pytest.fixture
+def busy():
+    """Two busy processes beside the test, ended by pid."""
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+    yield
+    for hog in hogs:
+        hog.kill()
+        hog.wait()
+
+
+def wait_until(predicate, timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not predicate():
+        time.sleep(0.05)
+    return predicate()
+
+
+def stamps_and_powers(messages) -> list[tuple[int, float]]:
+    return [contract.command_from_message(m) for m in messages]
+
+
+def log_lines(text: str, level: str) -> list[str]:
+    return [line for line in text.splitlines() if line.startswith(f"[{level}]")]
+
+
+@pytest.mark.parametrize("mode", ["lockstep", "realtime"])
+def test_a_run_that_reaches_its_duration_ends_at_info_with_no_zero_command(tmp_path, busy, mode):
+    domain = fresh_domain_id()
+    with node_processes(tmp_path, domain) as start:
+        probe = Probe(domain, (contract.TOPIC_PMU, contract.TOPIC_BATTERY_COMMAND))
+        try:
+            controller = start("controller", CONTROLLER, {"battery_limit_pu": 0.3})
+            # Every command must reach the probe: its subscription knows the controller's writer first.
+            assert wait_until(lambda: probe.node.count_publishers("/" + contract.TOPIC_BATTERY_COMMAND) >= 1, 30.0)
+            plant = start("plant", PLANT, {"mode": mode, "duration_s": 2.0, "wait_for_subscribers": 2,
+                                           "discovery_settle_s": 0.5})
+            assert plant.wait(timeout=120) == 0, plant.output()
+            time.sleep(1.0)  # ten times the stale watchdog's 0.1 s
+            assert controller.interrupt() == 0
+        finally:
+            probe.close()
+    output = controller.output()
+    assert not log_lines(output, "WARN") and not log_lines(output, "ERROR"), output
+    assert len([line for line in log_lines(output, "INFO") if END_INFO in line]) == 1, output
+    measurements = [contract.ns_from_time(m.header.stamp) for m in probe.take(contract.TOPIC_PMU)]
+    commands = stamps_and_powers(probe.take(contract.TOPIC_BATTERY_COMMAND))
+    assert len(measurements) == 100, "2 s at 50/s"
+    assert [stamp for stamp, _ in commands] == measurements, "one answer per measurement, no stand-down after"
+
+
+def test_a_plant_stopped_mid_run_is_a_normal_end_too(tmp_path, busy):
+    """SIGINT (Ctrl-C, or a launch shutting down) ends the run: its final status says so."""
+    domain = fresh_domain_id()
+    with node_processes(tmp_path, domain) as start:
+        probe = Probe(domain, (contract.TOPIC_BATTERY_COMMAND,))
+        try:
+            controller = start("controller", CONTROLLER, {"battery_limit_pu": 0.3})
+            plant = start("plant", PLANT, {"mode": "realtime", "wait_for_subscribers": 1})
+            assert wait_until(lambda: len(probe.take(contract.TOPIC_BATTERY_COMMAND)) > 25, 30.0)
+            assert plant.interrupt() == 0
+            time.sleep(1.0)
+            assert controller.interrupt() == 0
+        finally:
+            probe.close()
+    output = controller.output()
+    assert not log_lines(output, "WARN") and any(END_INFO in line for line in log_lines(output, "INFO")), output
+
+
+def test_a_killed_plant_is_a_loss_of_data_warned_with_a_zero_command(tmp_path, busy):
+    domain = fresh_domain_id()
+    with node_processes(tmp_path, domain) as start:
+        probe = Probe(domain, (contract.TOPIC_PMU, contract.TOPIC_BATTERY_COMMAND))
+        try:
+            controller = start("controller", CONTROLLER, {"battery_limit_pu": 0.3})
+            plant = start("plant", PLANT, {"mode": "realtime", "wait_for_subscribers": 1})
+            assert wait_until(lambda: len(probe.take(contract.TOPIC_BATTERY_COMMAND)) > 25, 30.0)
+            plant.kill()
+            assert wait_until(lambda: STALE_WARNING in controller.output(), 10.0), controller.output()
+            assert controller.interrupt() == 0
+        finally:
+            probe.close()
+    output = controller.output()
+    assert any(STALE_WARNING in line for line in log_lines(output, "WARN")), output
+    assert not any(END_INFO in line for line in output.splitlines()), output
+    last_measurement = max(contract.ns_from_time(m.header.stamp) for m in probe.take(contract.TOPIC_PMU))
+    stamp, power = stamps_and_powers(probe.take(contract.TOPIC_BATTERY_COMMAND))[-1]
+    assert stamp > last_measurement and power == 0.0, "the stand-down: zero, after the last measurement"
