@@ -101,7 +101,9 @@ def test_a_killed_plant_is_a_loss_of_data_warned_with_a_zero_command(tmp_path, b
         probe = Probe(domain, (contract.TOPIC_PMU, contract.TOPIC_BATTERY_COMMAND))
         try:
             controller = start("controller", CONTROLLER, {"battery_limit_pu": 0.3})
-            plant = start("plant", PLANT, {"mode": "realtime", "wait_for_subscribers": 1})
+            # The plant waits for the probe on pmu too: it compares the stand-down with the last measurement
+            # (on a clean clone the probe once matched pmu after the run had started and held no measurement).
+            plant = start("plant", PLANT, {"mode": "realtime", "wait_for_subscribers": 2})
             assert wait_until(lambda: len(probe.take(contract.TOPIC_BATTERY_COMMAND)) > 25, 30.0)
             plant.kill()
             assert wait_until(lambda: STALE_WARNING in controller.output(), 10.0), controller.output()
