@@ -242,10 +242,19 @@ def test_rogue_commands_make_the_run_compromised(tmp_path):
 
     rogue.on_message(contract.TOPIC_BATTERY_COMMAND, follow)
     rogue.advertise(contract.TOPIC_BATTERY_COMMAND)  # a writer on the battery's topic from the start
+    demo = subprocess.Popen([str(DEMO), "--mode", "realtime", "--b", "0.3", "--duration", "5", "--out", str(tmp_path),
+                             "--domain-id", str(domain)], env=ros_env(domain), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
     try:
-        result = run_demo(["--mode", "realtime", "--b", "0.3", "--duration", "2", "--out", str(tmp_path)], domain)
+        # The attack needs the rogue in the loop: its writer matched with the plant's command subscription.
+        # (Twice on a clean clone, the demo's 2 s run ended before the rogue had discovered the plant.)
+        in_loop = rogue.wait_matched(contract.TOPIC_BATTERY_COMMAND, 1, 60.0)
+        stdout, stderr = demo.communicate(timeout=300)
     finally:
+        demo.kill()
         rogue.close()
+    assert in_loop, "the rogue never matched the plant's battery/command subscription (discovery)"
+    result = subprocess.CompletedProcess(demo.args, demo.returncode, stdout, stderr)
     assert result.returncode == 3, result.stdout + result.stderr
     (line,) = [line for line in result.stdout.splitlines() if "b = 0.3" in line]
     assert "COMPROMISED" in line and "stable" not in line and "SYNCHRONISM" not in line
