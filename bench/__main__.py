@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nni_msgs_adapter.processes import Supervisor
+from nni_msgs_adapter.ros.processes import Supervisor
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Targets of issue 5 (ratios are measured in the same run).
@@ -439,7 +439,7 @@ def executor_name() -> str:
     """The executor class the nodes (and the ping-pong) spin, from ``node_main.make_executor``."""
     import rclpy
 
-    from nni_msgs_adapter.node_main import make_executor
+    from nni_msgs_adapter.ros.node_main import make_executor
 
     rclpy.init()
     try:

@@ -30,8 +30,8 @@ from rclpy.node import Node
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
-from nni_msgs_adapter import contract
-from nni_msgs_adapter.node_main import run_node
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros.node_main import run_node
 
 PING_TOPIC = "bench/ping"
 PONG_TOPIC = "bench/pong"

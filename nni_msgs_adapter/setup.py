@@ -23,10 +23,10 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "mcap_logger = nni_msgs_adapter.mcap_logger:main",
-            "replay = nni_msgs_adapter.replay:main",
-            "nni-replay = nni_msgs_adapter.replay:main",
-            "rerun_bridge = nni_msgs_adapter.rerun_bridge:main",
+            "mcap_logger = nni_msgs_adapter.recording.mcap_logger:main",
+            "replay = nni_msgs_adapter.recording.replay:main",
+            "nni-replay = nni_msgs_adapter.recording.replay:main",
+            "rerun_bridge = nni_msgs_adapter.viewing.rerun_bridge:main",
         ],
     },
 )

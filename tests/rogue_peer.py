@@ -19,7 +19,7 @@ import time
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
-from nni_msgs_adapter import contract
+from nni_msgs_adapter.ros import contract
 
 #: What the rogue commands, pu: far beyond any battery limit of the loop under test.
 ROGUE_POWER_PU = 5.0

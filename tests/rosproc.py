@@ -17,7 +17,7 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from nni_msgs_adapter.processes import Child, node_command
+from nni_msgs_adapter.ros.processes import Child, node_command
 
 _domain_counter = itertools.count()
 
@@ -42,7 +42,7 @@ def ros_env(domain_id: int, **extra) -> dict:
 class NodeProcess(Child):
     """A node (or any command) started as its own process, output in a log file for post-mortems.
 
-    The project's one supervisor (:mod:`nni_msgs_adapter.processes`): own session, dies with
+    The project's one supervisor (:mod:`nni_msgs_adapter.ros.processes`): own session, dies with
     the test process (parent-death signal)."""
 
     def __init__(self, cmd: list[str], env: dict, log_path: Path):
@@ -103,7 +103,7 @@ class Probe:
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
 
-        from nni_msgs_adapter import contract
+        from nni_msgs_adapter.ros import contract
 
         self.context = Context()
         rclpy.init(context=self.context, domain_id=domain_id)
@@ -141,7 +141,7 @@ class Probe:
                 return
 
     def _publisher(self, topic):
-        from nni_msgs_adapter import contract
+        from nni_msgs_adapter.ros import contract
 
         if topic not in self._publishers:
             self._publishers[topic] = self.node.create_publisher(*contract.endpoint(topic))

@@ -97,8 +97,8 @@ def test_installed_modules_come_from_the_workspace(workspace):
 
 def test_installed_nodes_run_the_loop(workspace, tmp_path):
     """The installed plant, controller and logger executables run a lockstep loop and record it."""
-    from nni_msgs_adapter import contract
-    from nni_msgs_adapter.mcap_io import read_messages
+    from nni_msgs_adapter.ros import contract
+    from nni_msgs_adapter.recording.mcap_io import read_messages
 
     domain = fresh_domain_id()
     env = installed_env(workspace, domain)
@@ -147,7 +147,7 @@ def test_launch_file_matches_the_installed_nodes(workspace):
     would, and the plant's exit is wired to a Shutdown.
     """
     from nni_battery_controller.controller_node import parameters as controller
-    from nni_msgs_adapter.mcap_logger import parameters as logger
+    from nni_msgs_adapter.recording.mcap_logger import parameters as logger
     from nni_plant_sim.plant_node import parameters as plant
 
     install = workspace / "install"

@@ -17,7 +17,7 @@ import time
 
 import pytest
 
-from nni_msgs_adapter import contract
+from nni_msgs_adapter.ros import contract
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
 from rosproc import Probe, fresh_domain_id, node_processes, wait_until

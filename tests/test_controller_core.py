@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from nni_battery_controller.controller_config import ControllerConfig
 from nni_battery_controller.controller_core import ControllerCore
-from nni_msgs_adapter.defaults import controller_defaults
+from nni_msgs_adapter.ros.defaults import controller_defaults
 
 MS = 1_000_000
 NOW = 1_700_000_000_000 * MS

@@ -20,12 +20,12 @@ from pathlib import Path
 import yaml
 from rosproc import fresh_domain_id
 
-from nni_msgs_adapter.defaults import config_path
+from nni_msgs_adapter.ros.defaults import config_path
 
 #: Importing these must read no config file (each used to, through its parameter table).
 MODULES = ("nni_plant_sim.plant_node", "nni_battery_controller.controller_node", "nni_battery_controller.demo",
-           "nni_battery_controller.cli", "nni_battery_controller.options", "nni_msgs_adapter.mcap_logger",
-           "nni_msgs_adapter.rerun_bridge", "nni_plant_sim.plant_config", "nni_battery_controller.controller_config")
+           "nni_battery_controller.cli", "nni_battery_controller.options", "nni_msgs_adapter.recording.mcap_logger",
+           "nni_msgs_adapter.viewing.rerun_bridge", "nni_plant_sim.plant_config", "nni_battery_controller.controller_config")
 
 #: Keys of a demo summary that depend on the wall clock or on the output name, not on the run's values.
 WALL_CLOCK = ("recording", "wall_time_s", "latency_ms")
@@ -34,7 +34,7 @@ DEFAULT_RUN_MAX_ANGLE_DEV_RAD = math.asin(0.8) - 0.2
 
 COUNT_READS = """
 import json, sys
-import nni_msgs_adapter.defaults as defaults
+import nni_msgs_adapter.ros.defaults as defaults
 reads, original = [], defaults.config_path
 defaults.config_path = lambda *args: reads.append(args[1]) or original(*args)
 for name in sys.argv[1:]:

@@ -25,11 +25,11 @@ from nni_battery_controller.demo import (
     recording_name,
     run_metadata,
 )
-from nni_msgs_adapter import contract
-from nni_msgs_adapter.cli_support import CliError
-from nni_msgs_adapter.recording import read_generator_run
-from nni_msgs_adapter.rerun_bridge import PROGRESS_PREFIX
-from nni_msgs_adapter.rerun_view import run_paths
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros.cli_support import CliError
+from nni_msgs_adapter.recording.runs import read_generator_run
+from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX
+from nni_msgs_adapter.viewing.rerun_view import run_paths
 from rosproc import Probe, busy_processes, fresh_domain_id, node_processes, ros_env
 
 pytestmark = pytest.mark.ros
@@ -346,7 +346,7 @@ def test_a_plant_told_to_wait_for_the_bridge_starts_only_when_the_bridge_hears_i
                                                             "wait_for_subscribers": 2})
         time.sleep(3.0)
         assert "started in" not in plant.output(), "two subscribers were asked for: the controller and the bridge"
-        bridge = start("rerun_bridge", "nni_msgs_adapter.rerun_bridge", {"sink": "save",
+        bridge = start("rerun_bridge", "nni_msgs_adapter.viewing.rerun_bridge", {"sink": "save",
                                                                            "path": str(tmp_path / "live.rrd")})
         assert plant.wait(timeout=60) == 0
         line = bridge.wait_for_line(PROGRESS_PREFIX, 30.0, lambda line: '"samples": 50,' in line)

@@ -10,7 +10,7 @@ import pytest
 
 from nni_battery_controller.law import ControllerParams
 from nni_battery_controller.simulate import simulate_sampled
-from nni_msgs_adapter import contract
+from nni_msgs_adapter.ros import contract
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.scenarios import InitialAngle
 from rosproc import Probe, fresh_domain_id, node_processes

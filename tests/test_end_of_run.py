@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from nni_msgs_adapter import contract
+from nni_msgs_adapter.ros import contract
 from rosproc import Probe, busy_processes, fresh_domain_id, node_processes, wait_until
 
 pytestmark = pytest.mark.ros

@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
 from nni_battery_controller.law import ControllerParams, SampledController
-from nni_msgs_adapter import contract
+from nni_msgs_adapter.ros import contract
 from nni_plant_sim.model import SmibParams
 from rosproc import Probe, fresh_domain_id, node_processes, wait_until
 
@@ -25,7 +25,7 @@ pytestmark = pytest.mark.ros
 
 CONTROLLER = "nni_battery_controller.controller_node"
 PLANT = "nni_plant_sim.plant_node"
-LOGGER = "nni_msgs_adapter.mcap_logger"
+LOGGER = "nni_msgs_adapter.recording.mcap_logger"
 DELTA_BAR = SmibParams().delta_bar_rad
 
 # --- the battery limit is an invariant: the core -------------------------------------------
@@ -383,7 +383,7 @@ def test_a_plant_waiting_for_nobody_says_so_and_gives_up(tmp_path):
 
 
 def test_logger_survives_publishers_that_come_and_go(tmp_path):
-    from nni_msgs_adapter.mcap_io import read_messages
+    from nni_msgs_adapter.recording.mcap_io import read_messages
 
     domain = fresh_domain_id()
     recording = tmp_path / "comings_and_goings.mcap"
@@ -417,7 +417,7 @@ def test_invalid_params_file_is_rejected_with_its_reason(tmp_path):
 @pytest.mark.soak
 def test_soak_zero_loss_on_reliable_topics(tmp_path):
     """Minutes of realtime loop at 100 frames/s: every sample reaches controller, logger and a subscriber."""
-    from nni_msgs_adapter.mcap_io import read_messages
+    from nni_msgs_adapter.recording.mcap_io import read_messages
 
     minutes = 3.0
     domain = fresh_domain_id()

@@ -17,16 +17,16 @@ from pathlib import Path
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
 
-from nni_msgs_adapter import contract
-from nni_msgs_adapter.mcap_io import read_recording
-from nni_msgs_adapter.mcap_logger import COUNTS_PREFIX, header_stamp_ns
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.recording.mcap_io import read_recording
+from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX, header_stamp_ns
 from rosproc import Probe, fresh_domain_id, node_processes
 
 pytestmark = pytest.mark.ros
 
 PLANT = "nni_plant_sim.plant_node"
 CONTROLLER = "nni_battery_controller.controller_node"
-LOGGER = "nni_msgs_adapter.mcap_logger"
+LOGGER = "nni_msgs_adapter.recording.mcap_logger"
 
 
 @pytest.fixture

@@ -32,19 +32,19 @@ from mcap.writer import Writer
 from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 
-from nni_msgs_adapter import contract
+from nni_msgs_adapter.ros import contract
 from nni_battery_controller.simulate import Outcome
-from nni_msgs_adapter.mcap_io import MCAP_MAGIC, Ros2McapWriter, deserialize, qos_profiles_yaml, read_messages
-from nni_msgs_adapter.defaults import controller_defaults, logger_defaults, plant_defaults
-from nni_msgs_adapter.mcap_logger import COUNTS_PREFIX
-from nni_msgs_adapter.recording import RUN_METADATA_NAME, read_generator_runs
+from nni_msgs_adapter.recording.mcap_io import MCAP_MAGIC, Ros2McapWriter, deserialize, qos_profiles_yaml, read_messages
+from nni_msgs_adapter.ros.defaults import controller_defaults, logger_defaults, plant_defaults
+from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX
+from nni_msgs_adapter.recording.runs import RUN_METADATA_NAME, read_generator_runs
 from rosproc import NodeProcess, Probe, fresh_domain_id, node_processes, ros_env
 
 pytestmark = pytest.mark.ros
 
 PLANT = "nni_plant_sim.plant_node"
 CONTROLLER = "nni_battery_controller.controller_node"
-LOGGER = "nni_msgs_adapter.mcap_logger"
+LOGGER = "nni_msgs_adapter.recording.mcap_logger"
 NNI_REPLAY = Path(sys.executable).parent / "nni-replay"
 RECORDINGS = Path(__file__).resolve().parent.parent / "recordings"
 RATE_HZ = 50.0

@@ -1,4 +1,4 @@
-"""Tests of nni_msgs_adapter.mcap_io against independent readers and killed recorders.
+"""Tests of nni_msgs_adapter.recording.mcap_io against independent readers and killed recorders.
 
 Files are written with real ROS messages (rclpy serialization, no DDS) and checked with
 rosbags (reads rosbag2 MCAP, deserializes CDR from the embedded definitions), mcap-ros2-support
@@ -42,7 +42,7 @@ from rosbags.interfaces import QosDurability, QosHistory, QosReliability
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from nni_msgs_adapter.mcap_io import (
+from nni_msgs_adapter.recording.mcap_io import (
     MCAP_MAGIC,
     OfferedQos,
     RecordedMessage,
@@ -269,7 +269,7 @@ def test_definition_matches_rosbag2_test_vector_through_ament_prefix_path(tmp_pa
     (msg_dir / "BasicMsg.msg").write_text("float32 c\n")
     script = (
         "import json, sys\n"
-        "from nni_msgs_adapter.mcap_io import message_definition\n"
+        "from nni_msgs_adapter.recording.mcap_io import message_definition\n"
         "print(json.dumps([message_definition(name) for name in sys.argv[1:]]))\n"
     )
     result = subprocess.run(
@@ -629,7 +629,7 @@ def test_timer_flushes_while_writer_stays_open(tmp_path: Path) -> None:
 
 KILLED_RECORDER = """
 import sys, time
-from nni_msgs_adapter.mcap_io import Ros2McapWriter, qos_profiles_yaml
+from nni_msgs_adapter.recording.mcap_io import Ros2McapWriter, qos_profiles_yaml
 
 path, cdr_bytes, count = sys.argv[1], bytes.fromhex(sys.argv[2]), int(sys.argv[3])
 writer = Ros2McapWriter(path, flush_period_s=0.05)

@@ -33,10 +33,10 @@ from pathlib import Path
 
 import pytest
 
-from nni_msgs_adapter.processes import node_command
-from nni_msgs_adapter import contract
-from nni_msgs_adapter.mcap_io import deserialize, read_messages
-from nni_msgs_adapter.node_main import FASTDDS_PROFILES_ENV, NETWORK_ENV, network_profile
+from nni_msgs_adapter.ros.processes import node_command
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.recording.mcap_io import deserialize, read_messages
+from nni_msgs_adapter.ros.node_main import FASTDDS_PROFILES_ENV, NETWORK_ENV, network_profile
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
 from rogue_peer import REPORT_PREFIX, ROGUE_POWER_PU
 from rosproc import NodeProcess, fresh_domain_id, ros_env
@@ -148,7 +148,7 @@ def run_attack(tmp_path: Path, network: str) -> dict:
                 nodes.append(NodeProcess(node_command(module, params), env, tmp_path / f"{network}_{name}.log"))
                 return nodes[-1]
 
-            start("logger", "nni_msgs_adapter.mcap_logger", {"output_path": str(mcap)})
+            start("logger", "nni_msgs_adapter.recording.mcap_logger", {"output_path": str(mcap)})
             start("controller", "nni_battery_controller.controller_node", {"battery_limit_pu": B})
             plant = start("plant", "nni_plant_sim.plant_node",
                           {"mode": "realtime", "duration_s": RUN_S, "wait_for_subscribers": 2})

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from nni_battery_controller.controller_config import ControllerConfig
-from nni_msgs_adapter.defaults import controller_defaults
+from nni_msgs_adapter.ros.defaults import controller_defaults
 from nni_battery_controller.controller_core import ControllerCore
 from nni_battery_controller.law import ControllerParams, SampledController, sampled_step
 from nni_battery_controller.network_sim import NetworkController, NetworkLaw, simulate_network

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from nni_battery_controller.network_sim import NetworkLaw, NetworkTrajectory, assess_network, simulate_network
-from nni_msgs_adapter import contract
+from nni_msgs_adapter.ros import contract
 from nni_plant_sim.cases import load_network
 from nni_plant_sim.network_plant_node import SUMMARY_PREFIX
 from nni_plant_sim.network_scenarios import BusFault
@@ -202,11 +202,11 @@ def test_the_mcap_logger_records_every_generator_of_the_network_run(tmp_path, ku
     """One logger, lockstep with batteries: the file holds /gen1../gen4, each equal to network_sim (1e-12)."""
     import signal
 
-    from nni_msgs_adapter.recording import read_generator_runs
+    from nni_msgs_adapter.recording.runs import read_generator_runs
 
     domain, path, b = fresh_domain_id(), tmp_path / "network.mcap", 0.1
     with node_processes(tmp_path, domain) as start:
-        logger = start("logger", "nni_msgs_adapter.mcap_logger", {"output_path": str(path), "discovery_period_s": 0.1})
+        logger = start("logger", "nni_msgs_adapter.recording.mcap_logger", {"output_path": str(path), "discovery_period_s": 0.1})
         for i in range(kundur.size):
             start(f"controller_gen{i + 1}", CONTROLLER, controller_parameters(kundur, i, b), ("-r", f"__ns:=/gen{i + 1}"))
         plant = start("plant", PLANT, {**FAULT, "duration_s": DURATION_S, "pmu_rate_hz": RATE_HZ,

@@ -26,11 +26,11 @@ from mcap.stream_reader import StreamReader
 from rclpy.serialization import serialize_message
 from rosbags.typesys import Stores, get_typestore
 
-from nni_msgs_adapter import contract
-from nni_msgs_adapter.mcap_io import (
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.recording.mcap_io import (
     MAX_CHUNK_BYTES, MCAP_MAGIC, Ros2McapWriter, message_definition, qos_profiles_yaml, read_recording, type_hash,
 )
-from nni_msgs_adapter.recording import read_generator_run
+from nni_msgs_adapter.recording.runs import read_generator_run
 
 NNI_REPLAY = Path(sys.executable).parent / "nni-replay"
 RECORDINGS = Path(__file__).resolve().parent.parent / "recordings"

@@ -27,10 +27,10 @@ from rosbags.highlevel import AnyReader
 
 from nni_battery_controller.cli import PAPER_BATTERY_LIMITS
 from nni_battery_controller.demo import recording_name
-from nni_msgs_adapter import contract
-from nni_msgs_adapter.mcap_io import read_messages
-from nni_msgs_adapter.recording import SAMPLE_TOPICS, read_generator_run
-from nni_msgs_adapter.rerun_view import run_paths
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.recording.mcap_io import read_messages
+from nni_msgs_adapter.recording.runs import SAMPLE_TOPICS, read_generator_run
+from nni_msgs_adapter.viewing.rerun_view import run_paths
 from rosproc import fresh_domain_id
 
 pytestmark = pytest.mark.ros

@@ -17,8 +17,8 @@ import pyarrow as pa
 import pytest
 from rerun.chunk import RrdReader
 
-from nni_msgs_adapter.palette import colour_hex, colour_rgb
-from nni_msgs_adapter.rerun_view import (
+from nni_msgs_adapter.viewing.palette import colour_hex, colour_rgb
+from nni_msgs_adapter.viewing.rerun_view import (
     PHASE_PATH,
     LiveLogger,
     blueprint,

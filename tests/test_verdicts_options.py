@@ -25,7 +25,7 @@ from scipy.integrate import solve_ivp
 from rosproc import fresh_domain_id, ros_env
 
 from nni_battery_controller.simulate import simulate_continuous, verdict_text
-from nni_msgs_adapter.palette import colour_hex
+from nni_msgs_adapter.viewing.palette import colour_hex
 
 ROOT = Path(__file__).resolve().parent.parent
 DEMO = Path(sys.executable).parent / "nni-demo"

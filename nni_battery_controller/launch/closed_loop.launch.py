@@ -27,8 +27,8 @@ from launch.events import Shutdown
 from launch.substitutions import EnvironmentVariable, LaunchConfiguration
 from launch_ros.actions import Node
 
-from nni_msgs_adapter.processes import parameter_text
-from nni_msgs_adapter.defaults import load_defaults
+from nni_msgs_adapter.ros.processes import parameter_text
+from nni_msgs_adapter.ros.defaults import load_defaults
 
 #: Launch arguments that are plant parameters (package nni_plant_sim, config/plant.yaml).
 PLANT_ARGUMENTS = (

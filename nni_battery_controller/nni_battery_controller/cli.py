@@ -33,7 +33,7 @@ from nni_battery_controller.simulate import (
     simulate_sampled,
     verdict_text,
 )
-from nni_msgs_adapter.cli_support import (
+from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,
     atomic_output,
@@ -43,8 +43,8 @@ from nni_msgs_adapter.cli_support import (
     run_cli,
     writable_output,
 )
-from nni_msgs_adapter.defaults import plant_defaults
-from nni_msgs_adapter.palette import colour_hex
+from nni_msgs_adapter.ros.defaults import plant_defaults
+from nni_msgs_adapter.viewing.palette import colour_hex
 from nni_plant_sim.model import SmibParams, critical_angles_rad, invariant_set_boundary, restoring_power
 from nni_plant_sim.scenarios import TransferLimitFault
 

@@ -10,8 +10,8 @@ import functools
 import math
 
 from nni_battery_controller.law import ControllerParams
-from nni_msgs_adapter.defaults import controller_defaults
-from nni_msgs_adapter.ros_params import Spec
+from nni_msgs_adapter.ros.defaults import controller_defaults
+from nni_msgs_adapter.ros.ros_params import Spec
 from nni_plant_sim.model import SmibParams
 
 

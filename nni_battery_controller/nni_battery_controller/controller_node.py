@@ -14,9 +14,9 @@ from rclpy.node import Node
 
 from nni_battery_controller.controller_config import ControllerConfig, locked_when_active, parameters
 from nni_battery_controller.controller_core import ControllerCore, reference_angle
-from nni_msgs_adapter import contract
-from nni_msgs_adapter.node_main import run_node
-from nni_msgs_adapter.ros_params import current_values, declare, install_validation, locked_changes
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros.node_main import run_node
+from nni_msgs_adapter.ros.ros_params import current_values, declare, install_validation, locked_changes
 
 
 class ControllerNode(Node):

@@ -36,7 +36,7 @@ from nni_battery_controller.cli import PAPER_BATTERY_LIMITS, plot_runs
 from nni_battery_controller.law import ControllerParams
 from nni_battery_controller.options import add_model_options, resolve_model
 from nni_battery_controller.simulate import Trajectory, assess, verdict_text
-from nni_msgs_adapter.cli_support import (
+from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,
     atomic_output,
@@ -46,12 +46,12 @@ from nni_msgs_adapter.cli_support import (
     run_cli,
     writable_output,
 )
-from nni_msgs_adapter.mcap_logger import COUNTS_PREFIX
-from nni_msgs_adapter.processes import ChildError, Supervisor
-from nni_msgs_adapter.recording import GeneratorRun, read_generator_run
-from nni_msgs_adapter.rerun_bridge import PROGRESS_PREFIX, READY_TEXT
-from nni_msgs_adapter.rerun_view import display_missing
-from nni_msgs_adapter.defaults import controller_defaults, plant_defaults
+from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX
+from nni_msgs_adapter.ros.processes import ChildError, Supervisor
+from nni_msgs_adapter.recording.runs import GeneratorRun, read_generator_run
+from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX, READY_TEXT
+from nni_msgs_adapter.viewing.rerun_view import display_missing
+from nni_msgs_adapter.ros.defaults import controller_defaults, plant_defaults
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
 from nni_plant_sim.scenarios import SCENARIO_FIELDS
@@ -174,7 +174,7 @@ def start_viewer(viewer: Supervisor, sink: dict, f0_hz: float):
         wait_for_port(viewer["rerun_viewer"], host, SERVE_GRPC_PORT)
         print(f"Rerun web viewer: http://{host}:{SERVE_WEB_PORT}/?url={urllib.parse.quote(proxy, safe='')}",
               flush=True)
-    bridge = viewer.start_node("rerun_bridge", "nni_msgs_adapter.rerun_bridge", params)
+    bridge = viewer.start_node("rerun_bridge", "nni_msgs_adapter.viewing.rerun_bridge", params)
     try:
         bridge.wait_for_line(READY_TEXT, timeout_s=30.0)
     except ChildError as error:
@@ -289,7 +289,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
     logs = out / "logs" / recording.stem
     started = time.monotonic()
     with Supervisor(env, logs) as procs:
-        logger = procs.start_node("mcap_logger", "nni_msgs_adapter.mcap_logger", {
+        logger = procs.start_node("mcap_logger", "nni_msgs_adapter.recording.mcap_logger", {
             "output_path": str(recording), "discovery_period_s": 0.1,
             "run_metadata": json.dumps(run_metadata(args, plant_params, controller_params))})
         controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params)

@@ -23,7 +23,7 @@ from nni_battery_controller.network_sim import (
     critical_clearing_times,
     simulate_network,
 )
-from nni_msgs_adapter.cli_support import (
+from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,
     atomic_output,

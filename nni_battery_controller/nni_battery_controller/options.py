@@ -2,7 +2,7 @@
 
 One helper adds the same options, with the same names and defaults, to both
 command lines; the defaults are the nodes' own (the package YAML files, read
-through :mod:`nni_msgs_adapter.defaults` when the parser is built, not at
+through :mod:`nni_msgs_adapter.ros.defaults` when the parser is built, not at
 import). Values are resolved in this order, later wins: the package YAML,
 ``--params-file`` (a ROS params file in the nodes' format), the command line.
 Each value is kept under the node parameter name it sets, so that what a demo
@@ -22,8 +22,8 @@ from pathlib import Path
 import yaml
 
 from nni_battery_controller.law import ControllerParams
-from nni_msgs_adapter.cli_support import CliError, finite_float, positive_float
-from nni_msgs_adapter.defaults import controller_defaults, plant_defaults
+from nni_msgs_adapter.ros.cli_support import CliError, finite_float, positive_float
+from nni_msgs_adapter.ros.defaults import controller_defaults, plant_defaults
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.scenarios import SCENARIO_FIELDS, SCENARIOS, from_values
 

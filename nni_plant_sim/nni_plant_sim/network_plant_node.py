@@ -33,9 +33,9 @@ from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 
-from nni_msgs_adapter import contract
-from nni_msgs_adapter.node_main import run_node
-from nni_msgs_adapter.ros_params import Spec, check_choices, current_values, declare, install_validation, locked_changes
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros.node_main import run_node
+from nni_msgs_adapter.ros.ros_params import Spec, check_choices, current_values, declare, install_validation, locked_changes
 from nni_plant_sim.cases import CASES, load_network
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.network import electrical_power

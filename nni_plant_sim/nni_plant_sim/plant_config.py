@@ -9,8 +9,8 @@ from __future__ import annotations
 import functools
 import math
 
-from nni_msgs_adapter.defaults import plant_defaults
-from nni_msgs_adapter.ros_params import Spec
+from nni_msgs_adapter.ros.defaults import plant_defaults
+from nni_msgs_adapter.ros.ros_params import Spec
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.scenarios import SCENARIOS
 

@@ -2,7 +2,7 @@
 
 Only translates between ROS (timers, messages, the graph) and the cores: the
 physics (:mod:`.model`, :mod:`.scenarios`, :mod:`.integrators`) and the reporting
-loop with its command path (:mod:`.reporting`). Topics and QoS: :mod:`nni_msgs_adapter.contract`.
+loop with its command path (:mod:`.reporting`). Topics and QoS: :mod:`nni_msgs_adapter.ros.contract`.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
-from nni_msgs_adapter import contract
-from nni_msgs_adapter.node_main import run_node
-from nni_msgs_adapter.ros_params import check_choices, current_values, declare, install_validation, locked_changes
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros.node_main import run_node
+from nni_msgs_adapter.ros.ros_params import check_choices, current_values, declare, install_validation, locked_changes
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.model import electrical_power, invariant_set_boundary
 from nni_plant_sim.plant_config import locked_during_run, parameters, plant_from

@@ -42,14 +42,14 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from rclpy.task import Future
 
-from nni_msgs_adapter import contract
-from nni_msgs_adapter.defaults import logger_defaults
-from nni_msgs_adapter.mcap_io import (
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros.defaults import logger_defaults
+from nni_msgs_adapter.recording.mcap_io import (
     OfferedQos, RecordingError, Ros2McapWriter, WriteFailure, qos_profiles_yaml, read_recording,
 )
-from nni_msgs_adapter.node_main import run_node
-from nni_msgs_adapter.recording import RUN_METADATA_NAME, split_topic
-from nni_msgs_adapter.ros_params import Spec, current_values, declare
+from nni_msgs_adapter.ros.node_main import run_node
+from nni_msgs_adapter.recording.runs import RUN_METADATA_NAME, split_topic
+from nni_msgs_adapter.ros.ros_params import Spec, current_values, declare
 
 @functools.cache
 def parameters() -> tuple[Spec, ...]:

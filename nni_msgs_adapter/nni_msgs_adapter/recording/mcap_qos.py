@@ -14,7 +14,7 @@ from typing import Any, Iterable
 
 import yaml
 
-from nni_msgs_adapter.mcap_profile import RecordingError
+from nni_msgs_adapter.recording.mcap_profile import RecordingError
 
 QOS_METADATA_KEY = "offered_qos_profiles"
 

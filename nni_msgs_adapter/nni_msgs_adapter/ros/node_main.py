@@ -46,8 +46,8 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
-from nni_msgs_adapter.cli_support import EXIT_USAGE
-from nni_msgs_adapter.defaults import config_path
+from nni_msgs_adapter.ros.cli_support import EXIT_USAGE
+from nni_msgs_adapter.ros.defaults import config_path
 
 #: Longest wait inside the executor, s: how soon a signal is noticed.
 _SIGNAL_POLL_S = 0.05

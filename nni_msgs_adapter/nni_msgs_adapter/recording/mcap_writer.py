@@ -29,10 +29,10 @@ from typing import Callable
 import yaml
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
-from nni_msgs_adapter.mcap_profile import (
+from nni_msgs_adapter.recording.mcap_profile import (
     MESSAGE_ENCODING, PROFILE, SCHEMA_ENCODING, RecordingError, _parse_type_name, message_definition, type_hash,
 )
-from nni_msgs_adapter.mcap_qos import QOS_METADATA_KEY
+from nni_msgs_adapter.recording.mcap_qos import QOS_METADATA_KEY
 
 TYPE_HASH_METADATA_KEY = "topic_type_hash"
 #: The ROS 2 distribution the recordings are for (what ``ros2 bag info`` shows as "ROS Distro").

@@ -34,8 +34,8 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
-from nni_msgs_adapter.mcap_profile import MESSAGE_ENCODING, PROFILE, RecordingError
-from nni_msgs_adapter.mcap_qos import QOS_METADATA_KEY
+from nni_msgs_adapter.recording.mcap_profile import MESSAGE_ENCODING, PROFILE, RecordingError
+from nni_msgs_adapter.recording.mcap_qos import QOS_METADATA_KEY
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 #: Largest top-level record read, bytes (a chunk's compressed body included). Our writer closes

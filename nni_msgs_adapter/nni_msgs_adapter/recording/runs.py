@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nni_msgs_adapter import contract
-from nni_msgs_adapter.mcap_io import (
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.recording.mcap_io import (
     RecordedMessage, Recording, RecordingError, deserialize, message_class, read_recording,
 )
 

@@ -38,12 +38,12 @@ import sys
 import numpy as np
 from rclpy.node import Node
 
-from nni_msgs_adapter import contract
-from nni_msgs_adapter.defaults import plant_defaults
-from nni_msgs_adapter.node_main import run_node
-from nni_msgs_adapter.ros_params import Spec, check_choices, current_values, declare
-from nni_msgs_adapter.palette import colour_rgb
-from nni_msgs_adapter.rerun_view import APP_ID, LiveLogger, open_recording
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros.defaults import plant_defaults
+from nni_msgs_adapter.ros.node_main import run_node
+from nni_msgs_adapter.ros.ros_params import Spec, check_choices, current_values, declare
+from nni_msgs_adapter.viewing.palette import colour_rgb
+from nni_msgs_adapter.viewing.rerun_view import APP_ID, LiveLogger, open_recording
 
 @functools.cache
 def parameters() -> tuple[Spec, ...]:

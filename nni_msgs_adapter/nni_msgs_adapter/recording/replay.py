@@ -31,7 +31,7 @@ and the blueprint of the live view: angle deviation, frequency deviation,
 battery power with +-b (b from ``controller/state`` ``battery_limit``), the
 saturation flag, W_hat, and the phase portrait with the recorded boundary of
 Omega: the same samples, values and labels the live bridge
-(:mod:`nni_msgs_adapter.rerun_bridge`) shows. ``--rrd`` writes a file,
+(:mod:`nni_msgs_adapter.viewing.rerun_bridge`) shows. ``--rrd`` writes a file,
 ``--connect`` streams to a running viewer or server (``rerun``, ``rerun
 --serve-web``, default ``rerun+http://127.0.0.1:9876/proxy``), ``--spawn``
 starts a native viewer (needs a display). f0 comes from the recording's run
@@ -72,14 +72,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from nni_msgs_adapter import contract
-from nni_msgs_adapter.cli_support import (
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros.cli_support import (
     CliError, OneLineParser, atomic_output, finite_float, positive_float, run_cli, writable_output,
 )
-from nni_msgs_adapter.mcap_io import (
+from nni_msgs_adapter.recording.mcap_io import (
     OfferedQos, RecordedMessage, Recording, RecordingError, parse_qos_profiles_yaml, read_recording,
 )
-from nni_msgs_adapter.recording import (
+from nni_msgs_adapter.recording.runs import (
     GeneratorRun, check_has_plant_state, check_message_type, generator_runs, run_metadata, split_topic,
 )
 
@@ -226,7 +226,7 @@ def log_recording(stream, runs, f0_hz: float) -> None:
     f0_hz : float
         Nominal frequency, Hz (run parameters only; NaN when the recording does not say).
     """
-    from nni_msgs_adapter.rerun_view import log_trajectory
+    from nni_msgs_adapter.viewing.rerun_view import log_trajectory
 
     for run in runs:
         answered = run.answered
@@ -254,7 +254,7 @@ def convert(args) -> int:
     elif args.connect is not None:
         check_listening(args.connect)
     f0_hz = view_f0_hz(args, run_metadata(recording))
-    from nni_msgs_adapter.rerun_view import APP_ID, blueprint, open_recording, recording_stream
+    from nni_msgs_adapter.viewing.rerun_view import APP_ID, blueprint, open_recording, recording_stream
 
     layout = blueprint(phase_bounds=phase_bounds(runs))
     if args.rrd is not None:
@@ -395,7 +395,7 @@ def _time_text(ns: int) -> str:
 
 def info_lines(recording: Recording, runs: dict[str, GeneratorRun], parameters: dict | None) -> list[str]:
     """What ``--info`` prints: ``ros2 bag info``'s fields, completeness, parameters, verdicts."""
-    from nni_msgs_adapter.mcap_io import describe_qos
+    from nni_msgs_adapter.recording.mcap_io import describe_qos
 
     from nni_battery_controller.simulate import assess
 
@@ -503,7 +503,7 @@ def check_listening(url: str) -> None:
 
 def check_display() -> None:
     """CliError if a native viewer cannot open a window here."""
-    from nni_msgs_adapter.rerun_view import display_missing
+    from nni_msgs_adapter.viewing.rerun_view import display_missing
 
     if display_missing():
         raise CliError("--spawn needs a display (DISPLAY and WAYLAND_DISPLAY are unset): "
@@ -601,8 +601,8 @@ def play(args, ros_args: list[str]) -> int:
         if not 0 <= args.domain_id <= 232:
             raise CliError(f"ROS domain id must be within 0..232, got {args.domain_id}")
         os.environ["ROS_DOMAIN_ID"] = str(args.domain_id)
-    from nni_msgs_adapter.node_main import run_node
-    from nni_msgs_adapter.replay_node import ReplayNode
+    from nni_msgs_adapter.ros.node_main import run_node
+    from nni_msgs_adapter.recording.replay_node import ReplayNode
 
     return run_node(lambda: ReplayNode(playback, rate=args.rate, loop=args.loop, clock=args.clock,
                                        wait_for_subscribers=args.wait_for_subscribers,

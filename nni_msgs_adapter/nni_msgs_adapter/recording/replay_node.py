@@ -1,7 +1,7 @@
 """Replay node: publishes a planned recording (:class:`replay.Playback`) with its original timing.
 
 The ROS half of ``nni-replay``; the command line, the reading and the planning
-are in :mod:`nni_msgs_adapter.replay`, which imports this module only for ROS
+are in :mod:`nni_msgs_adapter.recording.replay`, which imports this module only for ROS
 playback. Messages go out as recorded CDR bytes (``publish`` of ``bytes``), on
 their recorded topic names, with the planned QoS. One timer drives the
 playback: each callback publishes every message that is due and re-arms the
@@ -26,8 +26,8 @@ from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
 
-from nni_msgs_adapter import contract
-from nni_msgs_adapter.mcap_io import message_class
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.recording.mcap_io import message_class
 
 #: Wait between subscriber checks before the start, s.
 _START_POLL_S = 0.05

@@ -13,18 +13,18 @@ The parts live in their own modules; this module gathers what the rest of the pr
 
 from __future__ import annotations
 
-from nni_msgs_adapter.mcap_profile import (
+from nni_msgs_adapter.recording.mcap_profile import (
     MESSAGE_ENCODING, PROFILE, SCHEMA_ENCODING, RecordingError, deserialize, message_class, message_definition,
     serialize, type_hash,
 )
-from nni_msgs_adapter.mcap_qos import (
+from nni_msgs_adapter.recording.mcap_qos import (
     QOS_METADATA_KEY, OfferedQos, describe_qos, parse_qos_profiles_yaml, qos_profiles_yaml,
 )
-from nni_msgs_adapter.mcap_reader import (
+from nni_msgs_adapter.recording.mcap_reader import (
     MAX_CHUNK_BYTES, MAX_RECORD_BYTES, MAX_TOTAL_BYTES, MCAP_MAGIC, RecordedMessage, Recording, read_messages,
     read_recording,
 )
-from nni_msgs_adapter.mcap_writer import (
+from nni_msgs_adapter.recording.mcap_writer import (
     ROS_DISTRO, TYPE_HASH_METADATA_KEY, Ros2McapWriter, WriteFailure,
 )
 

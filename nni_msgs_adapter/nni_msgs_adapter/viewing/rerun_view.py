@@ -51,7 +51,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from nni_msgs_adapter.palette import colour_rgb
+from nni_msgs_adapter.viewing.palette import colour_rgb
 
 #: Default number of samples per phase-portrait strip segment (-).
 PHASE_SEGMENT_SAMPLES = 50

@@ -1,7 +1,7 @@
 """The package YAML files as the one source of default parameter values.
 
 Every entry point reads its defaults from here: the nodes (through
-:mod:`nni_msgs_adapter.ros_params`), ``nni-simulate``, ``nni-demo`` and the
+:mod:`nni_msgs_adapter.ros.ros_params`), ``nni-simulate``, ``nni-demo`` and the
 assessment of a demo run. Files are read on first use, not at import, and
 cached. Pure python: no rclpy, no rcl_interfaces.
 """
