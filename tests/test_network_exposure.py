@@ -15,7 +15,7 @@ nodes bind to a port that is not ephemeral (the DDS well-known ports) is on
 127.0.0.1.
 
 Needs root for ``ip netns`` (CI runs as root); where that is not permitted the
-test fails and says why. The namespace and links are removed in every case.
+test fails and says why. The namespace and links (tests/netns.py) are removed in every case.
 """
 
 from __future__ import annotations
@@ -27,19 +27,18 @@ import subprocess
 import sys
 import time
 import xml.etree.ElementTree as ET
-from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
+from netns import End, host_and_namespace
 from nni_msgs_adapter.ros.processes import node_command
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.recording.mcap_io import deserialize, read_messages
 from nni_msgs_adapter.ros.node_main import FASTDDS_PROFILES_ENV, NETWORK_ENV, network_profile
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
 from rogue_peer import REPORT_PREFIX, ROGUE_POWER_PU
-from rosproc import NodeProcess, fresh_domain_id, ros_env
+from rosproc import NodeProcess, busy_processes, fresh_domain_id, ros_env
 
 pytestmark = pytest.mark.ros
 
@@ -49,58 +48,11 @@ ROGUE = Path(__file__).with_name("rogue_peer.py")
 OUR_NODES = {"/plant", "/controller", "/mcap_logger"}
 
 
-@dataclass(frozen=True)
-class Link:
-    """A network namespace and the veth pair joining it to the root namespace."""
-
-    namespace: str
-    host_ip: str
-    namespace_ip: str
-
-
-def _ip(*args: str) -> subprocess.CompletedProcess:
-    try:
-        return subprocess.run(["ip", *args], capture_output=True, text=True, timeout=10)
-    except FileNotFoundError:
-        pytest.fail("the `ip` command (iproute2) is missing: this test builds a network namespace with it")
-
-
-@contextmanager
-def veth_namespace():
-    """A fresh namespace ``nni-sec-<pid>`` with ``lo`` up and a /30 on a veth pair; removed at exit."""
-    tag = os.getpid() % 100_000
-    namespace, host_if, namespace_if = f"nni-sec-{tag}", f"nnis{tag}h", f"nnis{tag}n"
-    subnet = f"10.213.{tag % 250}"
-    link = Link(namespace, f"{subnet}.1", f"{subnet}.2")
-    in_use = _ip("-4", "-o", "addr", "show").stdout
-    assert f" {subnet}." not in in_use, f"{subnet}.0/30 is already in use on this machine:\n{in_use}"
-    steps = (
-        ("netns", "add", namespace),
-        ("link", "add", host_if, "type", "veth", "peer", "name", namespace_if),
-        ("link", "set", namespace_if, "netns", namespace),
-        ("addr", "add", f"{link.host_ip}/30", "dev", host_if),
-        ("link", "set", host_if, "up"),
-        ("-n", namespace, "addr", "add", f"{link.namespace_ip}/30", "dev", namespace_if),
-        ("-n", namespace, "link", "set", namespace_if, "up"),
-        ("-n", namespace, "link", "set", "lo", "up"),
-    )
-    try:
-        for step in steps:
-            done = _ip(*step)
-            if done.returncode != 0:
-                pytest.fail(f"cannot build the test's network namespace: `ip {' '.join(step)}` failed "
-                            f"({done.stderr.strip()}); this test needs root and `ip netns` (CI runs as root)")
-        yield link
-    finally:
-        _ip("link", "del", host_if)  # deleting one end of a veth pair deletes both
-        _ip("netns", "del", namespace)
-
-
-def _rogue_env(domain: int, link: Link) -> dict:
+def _rogue_env(domain: int, host: End) -> dict:
     """Plain Fast DDS defaults (no profile of ours), the root side of the link as its static peer."""
     env = {k: v for k, v in os.environ.items() if k not in (FASTDDS_PROFILES_ENV, NETWORK_ENV)}
     env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               ROS_STATIC_PEERS=link.host_ip, PYTHONUNBUFFERED="1")
+               ROS_STATIC_PEERS=host.address, PYTHONUNBUFFERED="1")
     return env
 
 
@@ -120,27 +72,15 @@ def _ephemeral_low() -> int:
     return int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
 
 
-@contextmanager
-def busy_machine(processes: int = 2):
-    """Busy loops beside the run (discovery and timing under load); ended by pid."""
-    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(processes)]
-    try:
-        yield
-    finally:
-        for proc in busy:
-            proc.kill()
-            proc.wait()
-
-
 def run_attack(tmp_path: Path, network: str) -> dict:
     """Our loop with ``NNI_NETWORK=network`` in the root namespace, the rogue in another; what each saw."""
     domain = fresh_domain_id()
     mcap = tmp_path / f"{network}.mcap"
     env = ros_env(domain, **{NETWORK_ENV: network})
     env.pop(FASTDDS_PROFILES_ENV, None)
-    with veth_namespace() as link, busy_machine():
-        rogue = subprocess.Popen(["ip", "netns", "exec", link.namespace, sys.executable, str(ROGUE), str(RUN_S + 8.0)],
-                                 env=_rogue_env(domain, link), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+    with host_and_namespace() as (host, other), busy_processes(2):
+        rogue = subprocess.Popen(other.place.command([sys.executable, str(ROGUE), str(RUN_S + 8.0)]),
+                                 env=_rogue_env(domain, host), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                  text=True)
         nodes = []
         try:
@@ -241,17 +181,16 @@ def test_a_profile_file_of_the_users_own_is_used_and_said_on_the_log(tmp_path):
 def test_the_multihost_switch_runs_the_loop_across_network_namespaces(tmp_path):
     """What the switch is for: the plant on one side of a link, the controller on the other, peers named."""
     domain = fresh_domain_id()
-    with veth_namespace() as link, busy_machine():
-        controller_env = ros_env(domain, **{NETWORK_ENV: "multihost"}, ROS_STATIC_PEERS=link.host_ip)
+    with host_and_namespace() as (host, other), busy_processes(2):
+        controller_env = ros_env(domain, **{NETWORK_ENV: "multihost"}, ROS_STATIC_PEERS=host.address)
         controller = subprocess.Popen(
-            ["ip", "netns", "exec", link.namespace,
-             *node_command("nni_battery_controller.controller_node", {"battery_limit_pu": B})],
+            other.place.command(node_command("nni_battery_controller.controller_node", {"battery_limit_pu": B})),
             env=controller_env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         try:
             plant = subprocess.run(
                 node_command("nni_plant_sim.plant_node", {"mode": "realtime", "duration_s": 3.0,
                                                           "wait_for_subscribers": 1}),
-                env=ros_env(domain, **{NETWORK_ENV: "multihost"}, ROS_STATIC_PEERS=link.namespace_ip),
+                env=ros_env(domain, **{NETWORK_ENV: "multihost"}, ROS_STATIC_PEERS=other.address),
                 capture_output=True, text=True, timeout=120, cwd=tmp_path)
         finally:
             controller.terminate()
