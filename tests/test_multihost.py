@@ -42,7 +42,7 @@ from pathlib import Path
 
 import pytest
 
-from netns import network
+from netns import HOST, network
 from nni_msgs_adapter.recording.mcap_io import read_messages
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.node_main import FASTDDS_PROFILES_ENV, NETWORK_ENV
@@ -276,3 +276,24 @@ def test_without_root_the_test_fails_and_says_so():
     assert done.returncode == 1, done.stdout + done.stderr
     assert "1 failed" in done.stdout and "skipped" not in done.stdout, done.stdout
     assert "this test needs root and `ip netns`" in done.stdout, done.stdout
+
+
+def test_the_network_helper_removes_everything_also_when_the_block_fails():
+    """Namespaces, links (also one to this namespace) and shared-memory folders made in a failing block are gone."""
+    class Boom(Exception):
+        pass
+
+    made = {}
+    with pytest.raises(Boom):
+        with network() as net:
+            a, b = net.namespace(own_shm=True), net.namespace()
+            made = {"namespaces": [a.name, b.name], "interfaces": [end.interface for end in net.link(a, b)
+                                                                   + net.link(HOST, a)], "shm": a.shm}
+            listed = subprocess.run(a.command(["ip", "-o", "-4", "addr", "show"]), capture_output=True, text=True)
+            assert "10.213." in listed.stdout and Path(a.shm).is_dir()
+            raise Boom
+    namespaces = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True, check=True).stdout
+    links = subprocess.run(["ip", "-o", "link", "show"], capture_output=True, text=True, check=True).stdout
+    assert not any(name in namespaces for name in made["namespaces"]), namespaces
+    assert not any(f" {interface}@" in links or f" {interface}:" in links for interface in made["interfaces"]), links
+    assert not Path(made["shm"]).exists()
