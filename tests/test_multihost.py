@@ -24,7 +24,12 @@ The controllers' stale watchdog (wall clock: ``stale_after_periods``) is set
 to 1000 periods in both runs: a lockstep step on this loaded machine can take
 longer than the default 5 periods of wall time, and the controller then
 publishes a stand-down zero, which a lockstep plant ignores (the trajectory is
-not affected) but the recording would hold at a moment set by the load.
+not affected) but the recording would hold at a moment set by the load. The
+plant starts once ``pmu`` has its two subscribers (controller and logger) and
+then gives the rest of discovery ``discovery_settle_s``: 2 s here (0.2 s by
+default), since across the link, under load, the logger's reader of ``/clock``
+was once matched 0.9 s of simulated time after the start (it missed the first 47
+of 500 ticks; one host: never seen).
 
 Needs root for ``ip netns`` (CI runs as root): without it the tests fail and
 say so (test_without_root_the_test_fails_and_says_so shows that they do).
@@ -62,6 +67,8 @@ CONTROLLER = "nni_battery_controller.controller_node"
 RATE_HZ = 50.0
 #: Wall-clock watchdog of the controllers, periods (see the module docstring).
 STALE_AFTER_PERIODS = 1000
+#: The plants' wait, once pmu has its subscribers, for the logger to match their other writers, s (see the docstring).
+DISCOVERY_SETTLE_S = 2.0
 #: Topics whose recordings must be equal bit for bit (all the logger records but /diagnostics).
 NOT_COMPARED = {contract.TOPIC_DIAGNOSTICS}
 #: Bytes of the CDR encapsulation header, and of a builtin_interfaces/Time after it.
@@ -90,7 +97,7 @@ class Run:
 
 def smib_loop() -> Loop:
     plant = {"mode": "lockstep", "duration_s": 10.0, "pmu_rate_hz": RATE_HZ, "wait_for_subscribers": 2,
-             "wait_timeout_s": 120.0}
+             "wait_timeout_s": 120.0, "discovery_settle_s": DISCOVERY_SETTLE_S}
     controller = {"battery_limit_pu": 0.3, "sample_rate_hz": RATE_HZ, "stale_after_periods": STALE_AFTER_PERIODS}
     return Loop("nni_plant_sim.plant_node", plant, SMIB_SUMMARY, {"controller": (controller, ())})
 
@@ -98,7 +105,8 @@ def smib_loop() -> Loop:
 def kundur_loop() -> Loop:
     """The Kundur case with a battery of 0.1 pu per generator, bus 7 fault cleared by tripping 7-8 (as test_network_loop)."""
     net = load_network("kundur_two_area")
-    plant = {**FAULT, "duration_s": 4.0, "pmu_rate_hz": RATE_HZ, "wait_for_subscribers": 2, "wait_timeout_s": 120.0}
+    plant = {**FAULT, "duration_s": 4.0, "pmu_rate_hz": RATE_HZ, "wait_for_subscribers": 2, "wait_timeout_s": 120.0,
+             "discovery_settle_s": DISCOVERY_SETTLE_S}
     controllers = {f"controller_gen{i + 1}": ({**controller_parameters(net, i, 0.1),
                                                "stale_after_periods": STALE_AFTER_PERIODS},
                                               ("-r", f"__ns:=/gen{i + 1}"))
