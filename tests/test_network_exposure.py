@@ -188,7 +188,7 @@ def test_the_multihost_switch_runs_the_loop_across_network_namespaces(tmp_path):
             env=controller_env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         try:
             plant = subprocess.run(
-                node_command("nni_plant_sim.plant_node", {"mode": "realtime", "duration_s": 3.0,
+                node_command("nni_plant_sim.plant_node", {"mode": "lockstep", "duration_s": 3.0,
                                                           "wait_for_subscribers": 1}),
                 env=ros_env(domain, **{NETWORK_ENV: "multihost"}, ROS_STATIC_PEERS=other.address),
                 capture_output=True, text=True, timeout=120, cwd=tmp_path)
@@ -198,5 +198,6 @@ def test_the_multihost_switch_runs_the_loop_across_network_namespaces(tmp_path):
     assert plant.returncode == 0, plant.stderr
     summary = json.loads(next(line for line in plant.stdout.splitlines()
                               if line.startswith(SUMMARY_PREFIX))[len(SUMMARY_PREFIX):])
-    # 3 s at 50/s; under the busy loops a few instants may be skipped or answered late.
-    assert summary["measurements"] >= 100 and summary["commands"] >= 0.9 * summary["measurements"], summary
+    # 3 s at 50/s in lockstep: every measurement answered across the link. (Realtime, a machine loaded far
+    # beyond the two busy processes skipped most instants: that measured the load, not the switch.)
+    assert summary["measurements"] == 150 and summary["commands"] == 150, summary
