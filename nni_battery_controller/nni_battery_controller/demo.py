@@ -33,7 +33,6 @@ from pathlib import Path
 import numpy as np
 
 from nni_battery_controller.cli import PAPER_BATTERY_LIMITS, plot_runs
-from nni_battery_controller.law import ControllerParams
 from nni_battery_controller.options import add_model_options, resolve_model
 from nni_battery_controller.simulate import Trajectory, assess, verdict_text
 from nni_msgs_adapter.ros.cli_support import (
@@ -48,11 +47,10 @@ from nni_msgs_adapter.ros.cli_support import (
 )
 from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX
 from nni_msgs_adapter.ros.processes import ChildError, Supervisor
-from nni_msgs_adapter.recording.runs import GeneratorRun, read_generator_run
+from nni_msgs_adapter.recording.runs import GeneratorRun, read_generator_run, sampled_trajectory
 from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX, READY_TEXT
 from nni_msgs_adapter.viewing.rerun_view import display_missing
 from nni_msgs_adapter.ros.defaults import controller_defaults, plant_defaults
-from nni_plant_sim.model import SmibParams
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
 from nni_plant_sim.scenarios import SCENARIO_FIELDS
 
@@ -134,12 +132,6 @@ def run_metadata(args, plant: dict, controller: dict) -> dict:
             "controller": {**controller_defaults(), **controller}, "mode": args.mode, "rate_hz": args.rate,
             "software_version": software_version()}
 
-
-
-def trajectory_from_recording(run: GeneratorRun, plant: SmibParams, ctrl: ControllerParams) -> Trajectory:
-    """The sampled trajectory of a run's recording (read as replay reads it)."""
-    return Trajectory(plant, ctrl, run.t_s, run.delta_rad, run.speed_rad_s, run.signals["x3"], run.battery_power_pu,
-                      run.signals["w"], run.saturated, np.empty(0))
 
 
 def rerun_sink(words) -> dict:
@@ -316,7 +308,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
     if bridge is not None:
         wait_for_bridge(bridge, index, run, logs)
     # Assessed with the very model and scenario the nodes ran with.
-    traj = trajectory_from_recording(run, args.model.smib(), args.model.controller_params(b))
+    traj = sampled_trajectory(run, args.model.smib(), args.model.controller_params(b))
     outcome = assess(traj, scenario=args.model.scenario()).to_json()
     diag = run.diagnostics
     outcome.update({

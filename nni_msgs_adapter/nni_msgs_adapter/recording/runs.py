@@ -144,6 +144,21 @@ class _Collected:
     skipped: list = field(default_factory=list)
 
 
+def sampled_trajectory(run: GeneratorRun, plant, ctrl):
+    """The run as the sampled :class:`nni_battery_controller.simulate.Trajectory` that ``assess`` judges.
+
+    The one conversion of a recorded run for the demo's summary and for replay's
+    verdicts and figures. ``plant`` (:class:`nni_plant_sim.model.SmibParams`) and
+    ``ctrl`` (:class:`nni_battery_controller.law.ControllerParams`) are the
+    parameters the run was made with; x3, w and saturation come from
+    ``controller/state`` (NaN / False where the controller did not report).
+    """
+    from nni_battery_controller.simulate import Trajectory
+
+    return Trajectory(plant, ctrl, run.t_s, run.delta_rad, run.speed_rad_s, run.signals["x3"], run.battery_power_pu,
+                      run.signals["w"], run.saturated, np.empty(0))
+
+
 def read_generator_runs(path: str | os.PathLike[str]) -> dict[str, GeneratorRun]:
     """Every generator of a recording, by namespace.
 
