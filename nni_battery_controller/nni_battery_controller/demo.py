@@ -85,8 +85,20 @@ def build_parser() -> OneLineParser:
                              "machine, kept up until Ctrl-C) or 'spawn' (native viewer, needs a display); default: none")
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
+    parser.add_argument("--case", metavar="CASE",
+                        help="run a network of generators instead, one controller per generator (kundur_two_area, "
+                             "ieee39; its options: nni-demo --case CASE --help)")
     add_model_options(parser)
     return parser
+
+
+#: Options of ``nni-demo --case`` only: given to the SMIB demo, they are refused.
+NETWORK_ONLY_OPTIONS = ("--gen-b", "--fault-bus", "--fault-r", "--fault-x", "--trip-line")
+
+
+def given_options(argv) -> list[str]:
+    """The ``--option`` words of a command line (``--name=value`` as ``--name``)."""
+    return [word.split("=", 1)[0] for word in argv if word.startswith("--")]
 
 
 def recording_name(b: float, plant: dict | None = None) -> str:
@@ -204,28 +216,36 @@ def compromised_reasons(plant_summary: dict, run: GeneratorRun, b: float) -> dic
     return reasons
 
 
-def compromised_text(b: float, reasons: dict) -> str:
-    """One line saying why a run is compromised."""
+#: How a compromised run is printed instead of its verdict.
+COMPROMISED_PREFIX = "COMPROMISED (not a valid result): "
+
+
+def compromised_words(b: float, reasons: dict) -> list[str]:
+    """Why a run is compromised, one phrase per reason."""
     words = []
     if "max_abs_applied_power_pu" in reasons:
         words.append(f"|P_ST| {reasons['max_abs_applied_power_pu']:.4f} pu applied, above b = {b:g} pu")
-    words += [f"{reasons[key]} {key.replace('_', ' ')}" for key in TRUST_COUNTERS if key in reasons]
-    return "COMPROMISED (not a valid result): " + "; ".join(words)
+    return words + [f"{reasons[key]} {key.replace('_', ' ')}" for key in TRUST_COUNTERS if key in reasons]
 
 
-def plant_summary(output: str) -> dict:
-    """The final diagnostics values the plant printed at exit."""
+def compromised_text(b: float, reasons: dict) -> str:
+    """One line saying why a run is compromised."""
+    return COMPROMISED_PREFIX + "; ".join(compromised_words(b, reasons))
+
+
+def plant_summary(output: str, prefix: str = SUMMARY_PREFIX) -> dict:
+    """The final diagnostics values the plant printed at exit (the line starting with ``prefix``)."""
     for line in output.splitlines():
-        if line.startswith(SUMMARY_PREFIX):
-            return json.loads(line[len(SUMMARY_PREFIX):])
+        if line.startswith(prefix):
+            return json.loads(line[len(prefix):])
     raise CliError("the plant did not report its final diagnostics")
 
 
-def wait_for_plant(plant, args, b: float, limit_s: float) -> None:
-    """Wait for the plant's final summary line; on a terminal, show a realtime run's progress."""
+def wait_for_plant(plant, args, label: str, limit_s: float, prefix: str = SUMMARY_PREFIX) -> None:
+    """Wait for the plant's final summary line (``prefix``); on a terminal, show a realtime run's progress."""
     show = args.mode == "realtime" and sys.stderr.isatty()
     deadline, started, shown = time.monotonic() + limit_s, None, ""
-    while SUMMARY_PREFIX not in plant.output():
+    while prefix not in plant.output():
         if plant.poll() is not None:
             return
         if time.monotonic() > deadline:
@@ -236,13 +256,18 @@ def wait_for_plant(plant, args, b: float, limit_s: float) -> None:
             if started is not None:
                 # Realtime: simulated time runs with the wall clock from the plant's start.
                 elapsed_s = min(time.monotonic() - started, args.duration)
-                text = f"\r  b = {b:<5g} t = {elapsed_s:5.1f} of {args.duration:g} s"
+                text = f"\r  {label} t = {elapsed_s:5.1f} of {args.duration:g} s"
                 if text != shown:
                     print(text, end="", file=sys.stderr, flush=True)
                     shown = text
         time.sleep(0.05)
     if show:
         print("\r\033[K", end="", file=sys.stderr, flush=True)
+
+
+def run_time_limit_s(args) -> float:
+    """Longest wall time a plant may take for one run (start-up and discovery included)."""
+    return 60.0 + (args.duration if args.mode == "realtime" else args.duration * 2)
 
 
 def wait_for_bridge(bridge, index: int, run: GeneratorRun, logs: Path) -> None:
@@ -286,7 +311,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
             "run_metadata": json.dumps(run_metadata(args, plant_params, controller_params))})
         controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params)
         plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params)
-        wait_for_plant(plant, args, b, limit_s=60.0 + (args.duration if args.mode == "realtime" else args.duration * 2))
+        wait_for_plant(plant, args, f"b = {b:<5g}", run_time_limit_s(args))
         try:
             status = plant.wait_exit(procs.grace_s)
         except ChildError as error:
@@ -372,23 +397,39 @@ def parse_arguments(parser: OneLineParser, argv=None) -> argparse.Namespace:
     return args
 
 
+def run_environment(args) -> tuple[dict, int]:
+    """The children's environment and ROS domain (``--domain-id``, else $ROS_DOMAIN_ID, else 42); ``--out`` made.
+
+    CliError for a domain outside 0..232 or an output folder that cannot be written.
+    """
+    domain = args.domain_id if args.domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
+    if not 0 <= domain <= 232:
+        raise CliError(f"ROS domain id must be within 0..232, got {domain}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    if not os.access(args.out, os.W_OK):
+        raise CliError(f"output folder {args.out} is not writable")
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED="1")
+    return env, domain
+
+
 def main(argv=None) -> int:
-    """Entry point of ``nni-demo``."""
+    """Entry point of ``nni-demo`` (``--case``: the network demo of :mod:`network_demo`)."""
+    words = given_options(sys.argv[1:] if argv is None else argv)
+    if "--case" in words:
+        from nni_battery_controller import network_demo
+
+        return network_demo.main(argv)
     parser = build_parser()
 
     def body():
         # SIGTERM stops the demo as Ctrl-C does: every child is stopped on the way out.
         signal.signal(signal.SIGTERM, signal.default_int_handler)
+        network_only = [word for word in words if word in NETWORK_ONLY_OPTIONS]
+        if network_only:
+            raise CliError(f"{network_only[0]} applies to a network of generators only (nni-demo --case CASE ...)")
         args = parse_arguments(parser, argv)
         sink = rerun_sink(args.rerun) if args.rerun else None
-        domain = args.domain_id if args.domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
-        if not 0 <= domain <= 232:
-            raise CliError(f"ROS domain id must be within 0..232, got {domain}")
-        args.out.mkdir(parents=True, exist_ok=True)
-        if not os.access(args.out, os.W_OK):
-            raise CliError(f"output folder {args.out} is not writable")
-        env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain),
-                   PYTHONUNBUFFERED="1")
+        env, domain = run_environment(args)
         print(f"nni-demo: {args.mode}, {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}")
         print(f"  {args.model.header()}")
         with Supervisor(env, args.out) as viewer:
