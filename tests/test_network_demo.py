@@ -13,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+import uuid
 from importlib import metadata
 from pathlib import Path
 from types import SimpleNamespace
@@ -28,7 +29,6 @@ from nni_msgs_adapter.recording.runs import generator_runs, run_metadata
 from nni_plant_sim.cases import load_network
 from nni_plant_sim.network_scenarios import BusFault
 from rosproc import busy_processes, fresh_domain_id, node_processes, ros_env
-from test_demo import processes_in_domain
 
 pytestmark = pytest.mark.ros
 
@@ -59,9 +59,29 @@ def children_of(pid: int) -> set[tuple[int, int]]:
     return found
 
 
-def run_demo(args: list[str], domain: int, timeout: float = 600) -> tuple[subprocess.CompletedProcess, set]:
-    """Run nni-demo to the end; its result and every child process (pid, start time) seen while it ran."""
-    proc = subprocess.Popen([str(DEMO), *args, "--domain-id", str(domain)], env=ros_env(domain),
+def marked_env(domain: int) -> tuple[dict, str]:
+    """The demo's environment with a marker of this test, which every process it starts inherits."""
+    marker = uuid.uuid4().hex
+    return ros_env(domain, NNI_TEST_MARKER=marker), marker
+
+
+def marked_processes(marker: str) -> list[str]:
+    """Command lines of live processes whose environment holds ``marker`` (a test's demo and its children)."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        try:
+            if proc.name.isdigit() and f"NNI_TEST_MARKER={marker}".encode() in (proc / "environ").read_bytes().split(b"\0"):
+                if start_time(int(proc.name)) is not None:
+                    found.append((proc / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace"))
+        except OSError:
+            continue
+    return found
+
+
+def run_demo(args: list[str], domain: int, timeout: float = 600) -> tuple[subprocess.CompletedProcess, set, str]:
+    """Run nni-demo to the end; its result, every child process (pid, start time) seen while it ran, its marker."""
+    env, marker = marked_env(domain)
+    proc = subprocess.Popen([str(DEMO), *args, "--domain-id", str(domain)], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     seen: set = set()
     done = threading.Event()
@@ -78,14 +98,14 @@ def run_demo(args: list[str], domain: int, timeout: float = 600) -> tuple[subpro
     finally:
         done.set()
         watcher.join()
-    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err), seen
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err), seen, marker
 
 
-def assert_nothing_left(children: set, domain: int) -> None:
-    """No child the demo started is alive (same pid and start time), and no node runs in its domain."""
+def assert_nothing_left(children: set, marker: str) -> None:
+    """No child the demo started is alive (same pid and start time), nor any process with its environment."""
     alive = [(pid, started) for pid, started in children if start_time(pid) == started]
     assert alive == [], f"left running: {alive}"
-    assert processes_in_domain(domain) == []
+    assert marked_processes(marker) == []
 
 
 def table_rows(text: str, names) -> dict[str, str]:
@@ -103,11 +123,11 @@ def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_an
     """
     domain = fresh_domain_id()
     with busy_processes(2):
-        result, children = run_demo(["--case", "kundur_two_area", "--b", "0.1", "--gen-b", "2=0", "--duration", "2",
+        result, children, marker = run_demo(["--case", "kundur_two_area", "--b", "0.1", "--gen-b", "2=0", "--duration", "2",
                                      "--out", str(tmp_path)], domain)
     assert result.returncode == 0, result.stderr
     assert len(children) == 6, "logger, four controllers, plant"
-    assert_nothing_left(children, domain)
+    assert_nothing_left(children, marker)
     net = load_network("kundur_two_area")
     limits = np.array([0.1, 0.0, 0.1, 0.1])
     offline = simulate_network(net, default_law(net), BusFault(net, 7, 0.1), [limits], 2.0, 50.0)
@@ -152,10 +172,10 @@ def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_an
 def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
     """The issue's Done-when: ten controller processes, per-generator results, no process left (1 s lockstep)."""
     domain = fresh_domain_id()
-    result, children = run_demo(["--case", "ieee39", "--b", "0.1", "--duration", "1", "--out", str(tmp_path)], domain)
+    result, children, marker = run_demo(["--case", "ieee39", "--b", "0.1", "--duration", "1", "--out", str(tmp_path)], domain)
     assert result.returncode == 0, result.stderr
     assert len(children) == 12, "logger, ten controllers, plant"
-    assert_nothing_left(children, domain)
+    assert_nothing_left(children, marker)
     net = load_network("ieee39")
     rows = table_rows(result.stdout, net.names)
     assert set(rows) == set(net.names), result.stdout
@@ -275,3 +295,52 @@ def test_the_launch_files_nodes_run_the_network_and_record_every_generator(netwo
     runs = generator_runs(read_recording(path))
     assert list(runs) == ["/gen1", "/gen2", "/gen3", "/gen4"]
     assert all(run.stamp_ns.size == 51 for run in runs.values()), "1 s at 50 frames/s: t_0 .. t_50"
+
+
+def test_a_killed_network_demo_takes_every_process_with_it(tmp_path):
+    """SIGKILL mid-run (realtime, 60 s): the plant, the four controllers and the logger end with it."""
+    domain = fresh_domain_id()
+    env, marker = marked_env(domain)
+    demo = subprocess.Popen([str(DEMO), "--case", "kundur_two_area", "--mode", "realtime", "--b", "0.1",
+                             "--duration", "60", "--out", str(tmp_path), "--domain-id", str(domain)],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    children: set = set()
+    deadline = time.monotonic() + 120
+    while len(children) < 6 and time.monotonic() < deadline:
+        children |= children_of(demo.pid)
+        time.sleep(0.2)
+    assert len(children) == 6, "logger, four controllers and the plant should be running"
+    demo.kill()
+    demo.wait(timeout=60)
+    deadline = time.monotonic() + 30
+    while any(start_time(pid) == started for pid, started in children) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert_nothing_left(children, marker)
+
+
+def test_a_second_writer_on_one_generators_battery_makes_the_run_compromised(tmp_path):
+    """A rogue writer on /gen2/battery/command from the start (realtime, 1 s): exit 3, that generator named."""
+    from nni_msgs_adapter.ros import contract
+    from rosproc import Probe
+
+    domain = fresh_domain_id()
+    rogue = Probe(domain, (), namespace="gen2", node_name="rogue")
+    rogue.advertise(contract.TOPIC_BATTERY_COMMAND)
+    demo = subprocess.Popen([str(DEMO), "--case", "kundur_two_area", "--mode", "realtime", "--b", "0.1",
+                             "--duration", "1", "--out", str(tmp_path), "--domain-id", str(domain)],
+                            env=ros_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        in_loop = rogue.wait_matched(contract.TOPIC_BATTERY_COMMAND, 2, 120.0)  # the logger's and the plant's
+        stdout, stderr = demo.communicate(timeout=300)
+    finally:
+        demo.kill()
+        rogue.close()
+    assert in_loop, "the rogue's writer never matched the plant's battery/command subscription"
+    assert demo.returncode == 3, stdout + stderr
+    (line,) = [line for line in stdout.splitlines() if "COMPROMISED" in line]
+    assert line.strip().startswith("b = 0.1: COMPROMISED (not a valid result): /gen2: ") and "/gen1" not in line
+    assert "writer alarms" in line
+    assert len(stderr.strip().splitlines()) == 1 and "1 of 1 run(s) compromised" in stderr
+    (run,) = json.loads((tmp_path / "summary.json").read_text())["runs"]
+    assert list(run["compromised"]) == ["gen2"] and run["compromised"]["gen2"]["writer_alarms"] > 0
+    assert run["generators"]["gen2"]["max_abs_applied_power_pu"] <= 0.1

@@ -412,6 +412,26 @@ def run_environment(args) -> tuple[dict, int]:
     return env, domain
 
 
+def write_summary(out: Path, content: dict) -> Path:
+    """``OUT/summary.json`` (written whole or not at all); its path."""
+    summary = out / "summary.json"
+    with atomic_output(summary) as handle:
+        json.dump(content, handle, indent=2)
+        handle.write("\n")
+    return summary
+
+
+def exit_status(prog: str, runs: list[dict], what: str) -> int:
+    """0, or EXIT_COMPROMISED with one line on stderr naming the b of the compromised runs (``what`` was not ...)."""
+    compromised = [run for run in runs if "compromised" in run]
+    if not compromised:
+        return 0
+    limits = ", ".join(str(run["b"]) for run in compromised)
+    print(f"{prog}: error: {len(compromised)} of {len(runs)} run(s) compromised (b = {limits}): {what} not under "
+          "its controller's command alone; see summary.json", file=sys.stderr)
+    return EXIT_COMPROMISED
+
+
 def main(argv=None) -> int:
     """Entry point of ``nni-demo`` (``--case``: the network demo of :mod:`network_demo`)."""
     words = given_options(sys.argv[1:] if argv is None else argv)
@@ -438,22 +458,13 @@ def main(argv=None) -> int:
             if sink and sink["sink"] == "serve":
                 print("serving the Rerun stream; Ctrl-C to stop", flush=True)
                 wait_for_interrupt()
-        summary = args.out / "summary.json"
-        with atomic_output(summary) as handle:
-            json.dump({"scenarios": runs}, handle, indent=2)
-            handle.write("\n")
+        summary = write_summary(args.out, {"scenarios": runs})
         figure = args.out / "figures.png"
         plot_runs(trajectories, runs, figure, args.model.scenario_values(), f"sampled at {args.rate:g} Hz",
                   args.mode)
         written = [str(summary), str(figure)] + ([sink["path"]] if sink and sink["sink"] == "save" else [])
         print(f"wrote {', '.join(written)} and {len(runs)} recording(s) in {args.out}")
-        compromised = [run for run in runs if "compromised" in run]
-        if compromised:
-            limits = ", ".join(str(run["b"]) for run in compromised)
-            print(f"{parser.prog}: error: {len(compromised)} of {len(runs)} run(s) compromised (b = {limits}): "
-                  "the battery was not under its controller's command alone; see summary.json", file=sys.stderr)
-            return EXIT_COMPROMISED
-        return 0
+        return exit_status(parser.prog, runs, "the battery was")
 
     return run_cli(body, parser.prog)
 

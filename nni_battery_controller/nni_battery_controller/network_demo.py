@@ -27,10 +27,10 @@ from pathlib import Path
 from nni_battery_controller.demo import (
     COMPROMISED_PREFIX,
     DRAIN_S,
-    EXIT_COMPROMISED,
     TRUST_COUNTERS,
     compromised_reasons,
     compromised_words,
+    exit_status,
     given_options,
     logger_counts,
     plant_summary,
@@ -38,6 +38,7 @@ from nni_battery_controller.demo import (
     run_time_limit_s,
     software_version,
     wait_for_plant,
+    write_summary,
 )
 from nni_battery_controller.network_cli import DEFAULT_LIMITS, SCENARIO_OPTIONS, format_run, make_scenario, plot_network
 from nni_battery_controller.network_deployment import (
@@ -55,7 +56,6 @@ from nni_msgs_adapter.recording.runs import network_trajectory, read_generator_r
 from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,
-    atomic_output,
     battery_limit,
     finite_float,
     float_within,
@@ -295,22 +295,13 @@ def main(argv=None) -> int:
                 print(textwrap.indent(format_run(outcome, b, REFERENCE, net), "  "))
             print("\n".join(loop_table(result, net, limits)))
             print(f"  wall {result['wall_time_s']:.1f} s, recording {result['recording']}")
-        summary = args.out / "summary.json"
-        with atomic_output(summary) as handle:
-            json.dump({"case": args.case, "generators": list(net.names), "namespaces": list(spaces),
-                       "mbase_mva": net.mbase_mva.tolist(), "scenario": args.scenario_values,
-                       "description": args.description, "mode": args.mode, "rate_hz": args.rate, "runs": results},
-                      handle, indent=2)
-            handle.write("\n")
+        summary = write_summary(args.out, {
+            "case": args.case, "generators": list(net.names), "namespaces": list(spaces),
+            "mbase_mva": net.mbase_mva.tolist(), "scenario": args.scenario_values, "description": args.description,
+            "mode": args.mode, "rate_hz": args.rate, "runs": results})
         figure = args.out / "figures.png"
         plot_network(plotted, f"{args.case}: {args.description}; controllers {args.rate:g} Hz over ROS 2", figure)
         print(f"wrote {summary}, {figure} and {len(results)} recording(s) in {args.out}")
-        compromised = [result for result in results if "compromised" in result]
-        if compromised:
-            limits = ", ".join(str(result["b"]) for result in compromised)
-            print(f"{PROG}: error: {len(compromised)} of {len(results)} run(s) compromised (b = {limits}): a battery "
-                  "was not under its controller's command alone; see summary.json", file=sys.stderr)
-            return EXIT_COMPROMISED
-        return 0
+        return exit_status(PROG, results, "a battery was")
 
     return run_cli(body, PROG)
