@@ -262,6 +262,14 @@ def loop_table(result: dict, net, limits) -> list[str]:
     return rows
 
 
+def clipped_lines(result: dict) -> list[str]:
+    """One line per generator whose commands the plant clipped to the battery's rating (the run is then that rating's)."""
+    rating = next(spec.default for spec in plant_node_parameters() if spec.name == "battery_rating_pu")
+    return [f"  /{ns}: {g['trust']['clipped_commands']} command(s) beyond the battery's rating were clipped to it "
+            f"(the network plant's battery_rating_pu, {rating:g} pu): the battery there acted as one of {rating:g} pu"
+            for ns, g in result["generators"].items() if g["trust"].get("clipped_commands", 0)]
+
+
 def compromised_line(result: dict, limits, spaces) -> str:
     """``COMPROMISED (not a valid result): gen3: 2 foreign commands; ...``."""
     where = [f"/{ns}: {', '.join(compromised_words(float(limits[spaces.index(ns)]), reasons))}"
@@ -293,7 +301,7 @@ def main(argv=None) -> int:
                 print(f"  {run_label(args, b)}: {compromised_line(result, limits, spaces)}")
             else:
                 print(textwrap.indent(format_run(outcome, b, REFERENCE, net), "  "))
-            print("\n".join(loop_table(result, net, limits)))
+            print("\n".join(loop_table(result, net, limits) + clipped_lines(result)))
             print(f"  wall {result['wall_time_s']:.1f} s, recording {result['recording']}")
         summary = write_summary(args.out, {
             "case": args.case, "generators": list(net.names), "namespaces": list(spaces),
