@@ -209,6 +209,8 @@ def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
     (["--case", "kundur_two_area", "--gen-b", "5=0.1"], "--gen-b 5=0.1: no generator 5 (the case has gen1 .. gen4)"),
     (["--case", "kundur_two_area", "--K", "1", "1", "1", "2"], "generator G4@4: K must be less than L"),
     (["--gen-b", "2=0.1"], "--gen-b applies to a network of generators only"),
+    (["--case", "kundur_two_area", "--duration", "1e-9"], "network plant parameter duration_s = 1e-09 is outside"),
+    (["--case", "kundur_two_area", "--tau", "1e-5"], "controller parameter tau_s = 1e-05 is outside 0.0001..100"),
 ])
 def test_an_option_that_does_not_apply_is_refused_with_one_line(tmp_path, args, message):
     domain = fresh_domain_id()

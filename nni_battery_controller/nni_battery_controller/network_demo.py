@@ -40,6 +40,7 @@ from nni_battery_controller.demo import (
     wait_for_plant,
     write_summary,
 )
+from nni_battery_controller.controller_config import parameters as controller_node_parameters
 from nni_battery_controller.network_cli import DEFAULT_LIMITS, SCENARIO_OPTIONS, format_run, make_scenario, plot_network
 from nni_battery_controller.network_deployment import (
     SCENARIOS,
@@ -153,7 +154,24 @@ def parse_arguments(argv=None):
     args.law = NetworkLaw.uniform(net, *(getattr(defaults, name) if getattr(args, dest) is None else getattr(args, dest)
                                          for dest, name in GAINS))
     args.gen_limits = generator_limits(args.gen_b, net.size)
+    check_ranges("network plant", plant_node_parameters(),
+                 plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration))
+    for b in args.b:
+        limits = battery_limits(net.size, b, args.gen_limits)
+        for i in range(net.size):
+            check_ranges("controller", controller_node_parameters(),
+                         controller_parameters(net, i, limits[i], args.rate, args.law))
     return args
+
+
+def check_ranges(node: str, specs, values: dict) -> None:
+    """CliError for a value outside its node parameter's declared range (the node would refuse to start)."""
+    for spec in specs:
+        value = values.get(spec.name)
+        if spec.low is None or isinstance(value, (bool, str)) or value is None:
+            continue
+        if not spec.low <= value <= spec.high:
+            raise CliError(f"{node} parameter {spec.name} = {value:g} is outside {spec.low:g}..{spec.high:g}")
 
 
 def b_text(b: float) -> str:
