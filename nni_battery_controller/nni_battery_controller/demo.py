@@ -51,6 +51,7 @@ from nni_msgs_adapter.recording.runs import GeneratorRun, read_generator_run, sa
 from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX, READY_TEXT
 from nni_msgs_adapter.viewing.rerun_view import display_missing
 from nni_msgs_adapter.ros.defaults import controller_defaults, plant_defaults
+from nni_plant_sim.cases import CASES
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
 from nni_plant_sim.scenarios import SCENARIO_FIELDS
 
@@ -86,8 +87,8 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
     parser.add_argument("--case", metavar="CASE",
-                        help="run a network of generators instead, one controller per generator (kundur_two_area, "
-                             "ieee39; its options: nni-demo --case CASE --help)")
+                        help=f"run a network of generators instead, one controller per generator ({', '.join(CASES)}; "
+                             "its options: nni-demo --case CASE --help)")
     add_model_options(parser)
     return parser
 

@@ -100,7 +100,7 @@ REFUSED = {
 def build_parser() -> OneLineParser:
     """The ``nni-demo --case`` command line."""
     plant = {spec.name: spec.default for spec in plant_node_parameters()}
-    parser = OneLineParser(prog=f"{PROG} --case", description=__doc__)
+    parser = OneLineParser(prog=PROG, description=__doc__)
     parser.add_argument("--case", required=True, choices=tuple(CASES), help="the test system")
     parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
                         help="lockstep: simulated /clock, deterministic, fast (default); realtime: wall clock")
