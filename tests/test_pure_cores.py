@@ -28,6 +28,7 @@ PURE_MODULES = [
     "nni_battery_controller.cli",
     "nni_battery_controller.network_sim",
     "nni_battery_controller.network_cli",
+    "nni_battery_controller.network_deployment",
     "nni_msgs_adapter.recording.mcap_io",
     "nni_msgs_adapter.recording.mcap_profile",
     "nni_msgs_adapter.recording.mcap_qos",

@@ -33,7 +33,6 @@ from pathlib import Path
 import numpy as np
 
 from nni_battery_controller.cli import PAPER_BATTERY_LIMITS, plot_runs
-from nni_battery_controller.law import ControllerParams
 from nni_battery_controller.options import add_model_options, resolve_model
 from nni_battery_controller.simulate import Trajectory, assess, verdict_text
 from nni_msgs_adapter.ros.cli_support import (
@@ -48,11 +47,11 @@ from nni_msgs_adapter.ros.cli_support import (
 )
 from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX
 from nni_msgs_adapter.ros.processes import ChildError, Supervisor
-from nni_msgs_adapter.recording.runs import GeneratorRun, read_generator_run
+from nni_msgs_adapter.recording.runs import GeneratorRun, read_generator_run, sampled_trajectory
 from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX, READY_TEXT
 from nni_msgs_adapter.viewing.rerun_view import display_missing
 from nni_msgs_adapter.ros.defaults import controller_defaults, plant_defaults
-from nni_plant_sim.model import SmibParams
+from nni_plant_sim.cases import CASES
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
 from nni_plant_sim.scenarios import SCENARIO_FIELDS
 
@@ -87,8 +86,20 @@ def build_parser() -> OneLineParser:
                              "machine, kept up until Ctrl-C) or 'spawn' (native viewer, needs a display); default: none")
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
+    parser.add_argument("--case", metavar="CASE",
+                        help=f"run a network of generators instead, one controller per generator ({', '.join(CASES)}; "
+                             "its options: nni-demo --case CASE --help)")
     add_model_options(parser)
     return parser
+
+
+#: Options of ``nni-demo --case`` only: given to the SMIB demo, they are refused.
+NETWORK_ONLY_OPTIONS = ("--gen-b", "--fault-bus", "--fault-r", "--fault-x", "--trip-line")
+
+
+def given_options(argv) -> list[str]:
+    """The ``--option`` words of a command line (``--name=value`` as ``--name``)."""
+    return [word.split("=", 1)[0] for word in argv if word.startswith("--")]
 
 
 def recording_name(b: float, plant: dict | None = None) -> str:
@@ -134,12 +145,6 @@ def run_metadata(args, plant: dict, controller: dict) -> dict:
             "controller": {**controller_defaults(), **controller}, "mode": args.mode, "rate_hz": args.rate,
             "software_version": software_version()}
 
-
-
-def trajectory_from_recording(run: GeneratorRun, plant: SmibParams, ctrl: ControllerParams) -> Trajectory:
-    """The sampled trajectory of a run's recording (read as replay reads it)."""
-    return Trajectory(plant, ctrl, run.t_s, run.delta_rad, run.speed_rad_s, run.signals["x3"], run.battery_power_pu,
-                      run.signals["w"], run.saturated, np.empty(0))
 
 
 def rerun_sink(words) -> dict:
@@ -212,28 +217,36 @@ def compromised_reasons(plant_summary: dict, run: GeneratorRun, b: float) -> dic
     return reasons
 
 
-def compromised_text(b: float, reasons: dict) -> str:
-    """One line saying why a run is compromised."""
+#: How a compromised run is printed instead of its verdict.
+COMPROMISED_PREFIX = "COMPROMISED (not a valid result): "
+
+
+def compromised_words(b: float, reasons: dict) -> list[str]:
+    """Why a run is compromised, one phrase per reason."""
     words = []
     if "max_abs_applied_power_pu" in reasons:
         words.append(f"|P_ST| {reasons['max_abs_applied_power_pu']:.4f} pu applied, above b = {b:g} pu")
-    words += [f"{reasons[key]} {key.replace('_', ' ')}" for key in TRUST_COUNTERS if key in reasons]
-    return "COMPROMISED (not a valid result): " + "; ".join(words)
+    return words + [f"{reasons[key]} {key.replace('_', ' ')}" for key in TRUST_COUNTERS if key in reasons]
 
 
-def plant_summary(output: str) -> dict:
-    """The final diagnostics values the plant printed at exit."""
+def compromised_text(b: float, reasons: dict) -> str:
+    """One line saying why a run is compromised."""
+    return COMPROMISED_PREFIX + "; ".join(compromised_words(b, reasons))
+
+
+def plant_summary(output: str, prefix: str = SUMMARY_PREFIX) -> dict:
+    """The final diagnostics values the plant printed at exit (the line starting with ``prefix``)."""
     for line in output.splitlines():
-        if line.startswith(SUMMARY_PREFIX):
-            return json.loads(line[len(SUMMARY_PREFIX):])
+        if line.startswith(prefix):
+            return json.loads(line[len(prefix):])
     raise CliError("the plant did not report its final diagnostics")
 
 
-def wait_for_plant(plant, args, b: float, limit_s: float) -> None:
-    """Wait for the plant's final summary line; on a terminal, show a realtime run's progress."""
+def wait_for_plant(plant, args, label: str, limit_s: float, prefix: str = SUMMARY_PREFIX) -> None:
+    """Wait for the plant's final summary line (``prefix``); on a terminal, show a realtime run's progress."""
     show = args.mode == "realtime" and sys.stderr.isatty()
     deadline, started, shown = time.monotonic() + limit_s, None, ""
-    while SUMMARY_PREFIX not in plant.output():
+    while prefix not in plant.output():
         if plant.poll() is not None:
             return
         if time.monotonic() > deadline:
@@ -244,13 +257,18 @@ def wait_for_plant(plant, args, b: float, limit_s: float) -> None:
             if started is not None:
                 # Realtime: simulated time runs with the wall clock from the plant's start.
                 elapsed_s = min(time.monotonic() - started, args.duration)
-                text = f"\r  b = {b:<5g} t = {elapsed_s:5.1f} of {args.duration:g} s"
+                text = f"\r  {label} t = {elapsed_s:5.1f} of {args.duration:g} s"
                 if text != shown:
                     print(text, end="", file=sys.stderr, flush=True)
                     shown = text
         time.sleep(0.05)
     if show:
         print("\r\033[K", end="", file=sys.stderr, flush=True)
+
+
+def run_time_limit_s(args) -> float:
+    """Longest wall time a plant may take for one run (start-up and discovery included)."""
+    return 60.0 + (args.duration if args.mode == "realtime" else args.duration * 2)
 
 
 def wait_for_bridge(bridge, index: int, run: GeneratorRun, logs: Path) -> None:
@@ -294,7 +312,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
             "run_metadata": json.dumps(run_metadata(args, plant_params, controller_params))})
         controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params)
         plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params)
-        wait_for_plant(plant, args, b, limit_s=60.0 + (args.duration if args.mode == "realtime" else args.duration * 2))
+        wait_for_plant(plant, args, f"b = {b:<5g}", run_time_limit_s(args))
         try:
             status = plant.wait_exit(procs.grace_s)
         except ChildError as error:
@@ -316,7 +334,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
     if bridge is not None:
         wait_for_bridge(bridge, index, run, logs)
     # Assessed with the very model and scenario the nodes ran with.
-    traj = trajectory_from_recording(run, args.model.smib(), args.model.controller_params(b))
+    traj = sampled_trajectory(run, args.model.smib(), args.model.controller_params(b))
     outcome = assess(traj, scenario=args.model.scenario()).to_json()
     diag = run.diagnostics
     outcome.update({
@@ -380,23 +398,59 @@ def parse_arguments(parser: OneLineParser, argv=None) -> argparse.Namespace:
     return args
 
 
+def run_environment(args) -> tuple[dict, int]:
+    """The children's environment and ROS domain (``--domain-id``, else $ROS_DOMAIN_ID, else 42); ``--out`` made.
+
+    CliError for a domain outside 0..232 or an output folder that cannot be written.
+    """
+    domain = args.domain_id if args.domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
+    if not 0 <= domain <= 232:
+        raise CliError(f"ROS domain id must be within 0..232, got {domain}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    if not os.access(args.out, os.W_OK):
+        raise CliError(f"output folder {args.out} is not writable")
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED="1")
+    return env, domain
+
+
+def write_summary(out: Path, content: dict) -> Path:
+    """``OUT/summary.json`` (written whole or not at all); its path."""
+    summary = out / "summary.json"
+    with atomic_output(summary) as handle:
+        json.dump(content, handle, indent=2)
+        handle.write("\n")
+    return summary
+
+
+def exit_status(prog: str, runs: list[dict], what: str) -> int:
+    """0, or EXIT_COMPROMISED with one line on stderr naming the b of the compromised runs (``what`` was not ...)."""
+    compromised = [run for run in runs if "compromised" in run]
+    if not compromised:
+        return 0
+    limits = ", ".join(str(run["b"]) for run in compromised)
+    print(f"{prog}: error: {len(compromised)} of {len(runs)} run(s) compromised (b = {limits}): {what} not under "
+          "its controller's command alone; see summary.json", file=sys.stderr)
+    return EXIT_COMPROMISED
+
+
 def main(argv=None) -> int:
-    """Entry point of ``nni-demo``."""
+    """Entry point of ``nni-demo`` (``--case``: the network demo of :mod:`network_demo`)."""
+    words = given_options(sys.argv[1:] if argv is None else argv)
+    if "--case" in words:
+        from nni_battery_controller import network_demo
+
+        return network_demo.main(argv)
     parser = build_parser()
 
     def body():
         # SIGTERM stops the demo as Ctrl-C does: every child is stopped on the way out.
         signal.signal(signal.SIGTERM, signal.default_int_handler)
+        network_only = [word for word in words if word in NETWORK_ONLY_OPTIONS]
+        if network_only:
+            raise CliError(f"{network_only[0]} applies to a network of generators only (nni-demo --case CASE ...)")
         args = parse_arguments(parser, argv)
         sink = rerun_sink(args.rerun) if args.rerun else None
-        domain = args.domain_id if args.domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
-        if not 0 <= domain <= 232:
-            raise CliError(f"ROS domain id must be within 0..232, got {domain}")
-        args.out.mkdir(parents=True, exist_ok=True)
-        if not os.access(args.out, os.W_OK):
-            raise CliError(f"output folder {args.out} is not writable")
-        env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain),
-                   PYTHONUNBUFFERED="1")
+        env, domain = run_environment(args)
         print(f"nni-demo: {args.mode}, {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}")
         print(f"  {args.model.header()}")
         with Supervisor(env, args.out) as viewer:
@@ -405,22 +459,13 @@ def main(argv=None) -> int:
             if sink and sink["sink"] == "serve":
                 print("serving the Rerun stream; Ctrl-C to stop", flush=True)
                 wait_for_interrupt()
-        summary = args.out / "summary.json"
-        with atomic_output(summary) as handle:
-            json.dump({"scenarios": runs}, handle, indent=2)
-            handle.write("\n")
+        summary = write_summary(args.out, {"scenarios": runs})
         figure = args.out / "figures.png"
         plot_runs(trajectories, runs, figure, args.model.scenario_values(), f"sampled at {args.rate:g} Hz",
                   args.mode)
         written = [str(summary), str(figure)] + ([sink["path"]] if sink and sink["sink"] == "save" else [])
         print(f"wrote {', '.join(written)} and {len(runs)} recording(s) in {args.out}")
-        compromised = [run for run in runs if "compromised" in run]
-        if compromised:
-            limits = ", ".join(str(run["b"]) for run in compromised)
-            print(f"{parser.prog}: error: {len(compromised)} of {len(runs)} run(s) compromised (b = {limits}): "
-                  "the battery was not under its controller's command alone; see summary.json", file=sys.stderr)
-            return EXIT_COMPROMISED
-        return 0
+        return exit_status(parser.prog, runs, "the battery was")
 
     return run_cli(body, parser.prog)
 

@@ -80,7 +80,8 @@ from nni_msgs_adapter.recording.mcap_io import (
     OfferedQos, RecordedMessage, Recording, RecordingError, parse_qos_profiles_yaml, read_recording,
 )
 from nni_msgs_adapter.recording.runs import (
-    GeneratorRun, check_has_plant_state, check_message_type, generator_runs, run_metadata, split_topic,
+    GeneratorRun, check_has_plant_state, check_message_type, generator_runs, run_metadata, sampled_trajectory,
+    split_topic,
 )
 
 PROG = "nni-replay"
@@ -374,7 +375,6 @@ def trajectories(recording: Recording, runs: dict[str, GeneratorRun], parameters
     b is the one the controller reported in the run (``controller/state``), where it did.
     """
     from nni_battery_controller.law import ControllerParams
-    from nni_battery_controller.simulate import Trajectory
     from nni_plant_sim.model import SmibParams
 
     plant = _dataclass_from(SmibParams, parameters.get("plant"), "plant", recording.path)
@@ -383,8 +383,7 @@ def trajectories(recording: Recording, runs: dict[str, GeneratorRun], parameters
     for namespace, run in runs.items():
         b = run.battery_limit_pu
         run_ctrl = ctrl if math.isnan(b) else replace(ctrl, battery_limit_pu=b)
-        out[namespace] = Trajectory(plant, run_ctrl, run.t_s, run.delta_rad, run.speed_rad_s, run.signals["x3"],
-                                    run.battery_power_pu, run.signals["w"], run.saturated, np.empty(0))
+        out[namespace] = sampled_trajectory(run, plant, run_ctrl)
     return out
 
 

@@ -1,0 +1,333 @@
+"""``nni-demo --case CASE``: a network of generators over ROS 2, one battery controller process per generator.
+
+For each battery limit b it starts the MCAP logger, one controller node per
+generator of the case (namespace ``/gen<i>``, g measured, b at every generator
+unless ``--gen-b`` says otherwise) and the network plant node, with
+localhost-only discovery on one ROS domain; lets the plant run its disturbance
+to the end, stops the others and reads the one recording (every namespace)
+back. Each run is judged with the offline network study's assessment
+(``network_sim.assess_network``) on the recorded trajectory and printed as
+``nni-simulate --case`` prints it, with each generator's loop latency and
+trust counters; ``OUT/summary.json`` holds it all per generator. A run in which
+any generator's battery was commanded by anyone but its controller, or applied
+more than its b, is reported as compromised (exit status 3). Killed, it takes
+its processes with it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+from nni_battery_controller.demo import (
+    COMPROMISED_PREFIX,
+    DRAIN_S,
+    TRUST_COUNTERS,
+    compromised_reasons,
+    compromised_words,
+    exit_status,
+    given_options,
+    logger_counts,
+    plant_summary,
+    run_environment,
+    run_time_limit_s,
+    software_version,
+    wait_for_plant,
+    write_summary,
+)
+from nni_battery_controller.controller_config import parameters as controller_node_parameters
+from nni_battery_controller.network_cli import DEFAULT_LIMITS, SCENARIO_OPTIONS, format_run, make_scenario, plot_network
+from nni_battery_controller.network_deployment import (
+    SCENARIOS,
+    battery_limits,
+    controller_parameters,
+    default_law,
+    generator_limits,
+    namespaces,
+    plant_parameters,
+    scenario_parameters,
+)
+from nni_battery_controller.network_sim import NetworkLaw, assess_network
+from nni_msgs_adapter.recording.runs import network_trajectory, read_generator_runs
+from nni_msgs_adapter.ros.cli_support import (
+    CliError,
+    OneLineParser,
+    battery_limit,
+    finite_float,
+    float_within,
+    positive_float,
+    run_cli,
+)
+from nni_msgs_adapter.ros.processes import ChildError, Supervisor
+from nni_plant_sim.cases import CASES, load_network
+from nni_plant_sim.network_plant_node import SUMMARY_PREFIX, parameters as plant_node_parameters
+
+PROG = "nni-demo"
+PLANT = "nni_plant_sim.network_plant_node"
+CONTROLLER = "nni_battery_controller.controller_node"
+#: The angle reference the controllers use (their own PMU angle against the nominal-frequency reference).
+REFERENCE = "pmu"
+#: (option dest, NetworkLaw field) of each gain.
+GAINS = (("tau", "tau_s"), ("gain_k", "gain_k"), ("gain_l", "gain_l"), ("alpha", "alpha"))
+#: The plant's counters shown per generator: the trust counters (any non-zero one compromises a run) and
+#: those of commands dropped or clipped on the way to the battery.
+SHOWN_COUNTERS = (*TRUST_COUNTERS, "expired_commands", "invalid_commands", "clipped_commands")
+
+_SMIB_MODEL = "the machines, their data and their operating point come from the case"
+_NOT_RUN = ("the network plant node does not run mechanical_step or angle_displacement (offline: "
+            "nni-simulate --case CASE --scenario mechanical_step | angle_displacement)")
+#: Options of the SMIB demo (or of the offline network study) that a networked run cannot honour, and why.
+REFUSED = {
+    "--rerun": "the Rerun bridge has no per-generator view in this build (its namespaces parameter); the "
+               "run's MCAP holds every generator",
+    "--params-file": "its /**/plant and /**/controller sections describe one machine; give the gains with "
+                     "--tau, --K, --L, --alpha (one value or one per generator)",
+    **{flag: _SMIB_MODEL for flag in ("--H", "--D", "--P-M", "--P-max", "--f0")},
+    **{flag: "it belongs to a scenario of the SMIB demo; a network runs --scenario bus_fault or line_trip"
+       for flag in ("--delta0", "--speed0", "--fault-p-max")},
+    **{flag: _NOT_RUN for flag in ("--step-p-mech", "--step-duration", "--machine", "--displace")},
+    "--reference": "the controllers measure their angle against their PMU's reference (pmu); the centre-of-"
+                   "inertia reference over DDS is not in this build (offline: nni-simulate --case CASE "
+                   "--reference coi)",
+}
+
+
+def build_parser() -> OneLineParser:
+    """The ``nni-demo --case`` command line."""
+    plant = {spec.name: spec.default for spec in plant_node_parameters()}
+    parser = OneLineParser(prog=PROG, description=__doc__)
+    parser.add_argument("--case", required=True, choices=tuple(CASES), help="the test system")
+    parser.add_argument("--mode", choices=("lockstep", "realtime"), default="lockstep",
+                        help="lockstep: simulated /clock, deterministic, fast (default); realtime: wall clock")
+    parser.add_argument("--b", type=battery_limit, nargs="+", default=list(DEFAULT_LIMITS), metavar="B",
+                        help="battery limits in pu of each machine's rating, one run each, the same at every "
+                             "generator ('inf' allowed; default: 0 0.1 0.3 inf)")
+    parser.add_argument("--gen-b", nargs="+", default=[], metavar="I=B",
+                        help="generator I's battery limit in every run instead (I: 1.. as in /gen<I>, case order; "
+                             "e.g. --gen-b 3=0.2 4=inf)")
+    parser.add_argument("--duration", type=positive_float, default=10.0, help="simulated seconds per run (default: 10)")
+    parser.add_argument("--rate", type=float_within(10.0, 1000.0, "frames/s"), default=plant["pmu_rate_hz"],
+                        help=f"PMU reporting rate, frames/s (default: {plant['pmu_rate_hz']:g})")
+    parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder, created (default: out/demo)")
+    parser.add_argument("--domain-id", type=int, default=None,
+                        help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
+    scenario = parser.add_argument_group("disturbance at t = 0 (as nni-simulate --case)")
+    scenario.add_argument("--scenario", choices=SCENARIOS, default="bus_fault")
+    scenario.add_argument("--fault-bus", type=int, help="bus_fault: the faulted bus (default: 7 Kundur, 16 IEEE 39)")
+    scenario.add_argument("--fault-r", type=float_within(0.0, 1e6, "pu"), help="bus_fault: resistance, pu system base (0)")
+    scenario.add_argument("--fault-x", type=finite_float, help="bus_fault: reactance, pu system base (0: bolted)")
+    scenario.add_argument("--clearing-time", type=positive_float, help="bus_fault: fault duration, s (default 0.1)")
+    scenario.add_argument("--trip-line", type=int, nargs="+", metavar="BUS",
+                          help="FROM TO [CIRCUIT]: the branch that opens (at clearing, or at t = 0 for line_trip)")
+    gains = parser.add_argument_group("controller gains (pu of each machine's rating; one value or one per generator; "
+                                      "default: the controller node's)")
+    for (dest, _), flag, text in zip(GAINS, ("--tau", "--K", "--L", "--alpha"), ("tau, s", "K, pu/rad", "L, pu/rad",
+                                                                                 "alpha")):
+        gains.add_argument(flag, dest=dest, type=positive_float, nargs="+", default=None, help=text)
+    return parser
+
+
+def refuse(words) -> None:
+    """CliError naming the first option given that does not apply to a networked run."""
+    for word in words:
+        if word in REFUSED:
+            raise CliError(f"{word} does not apply to --case: {REFUSED[word]}")
+
+
+def parse_arguments(argv=None):
+    """The command line, validated before anything starts: the case, its disturbance, gains and limits."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    refuse(given_options(argv))
+    args = build_parser().parse_args(argv)
+    for option, scenarios in SCENARIO_OPTIONS.items():
+        if getattr(args, option, None) is not None and args.scenario not in scenarios:
+            raise CliError(f"--{option.replace('_', '-')} does not apply to --scenario {args.scenario}")
+    args.net = net = load_network(args.case)
+    args.scenario_object, args.description, _ = make_scenario(net, args)
+    args.scenario_values = scenario_parameters(args.scenario_object, args.trip_line or ())
+    defaults = default_law(net)
+    args.law = NetworkLaw.uniform(net, *(getattr(defaults, name) if getattr(args, dest) is None else getattr(args, dest)
+                                         for dest, name in GAINS))
+    args.gen_limits = generator_limits(args.gen_b, net.size)
+    check_ranges("network plant", plant_node_parameters(),
+                 plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration))
+    for b in args.b:
+        limits = battery_limits(net.size, b, args.gen_limits)
+        for i in range(net.size):
+            check_ranges("controller", controller_node_parameters(),
+                         controller_parameters(net, i, limits[i], args.rate, args.law))
+    return args
+
+
+def check_ranges(node: str, specs, values: dict) -> None:
+    """CliError for a value outside its node parameter's declared range (the node would refuse to start)."""
+    for spec in specs:
+        value = values.get(spec.name)
+        if spec.low is None or isinstance(value, (bool, str)) or value is None:
+            continue
+        if not spec.low <= value <= spec.high:
+            raise CliError(f"{node} parameter {spec.name} = {value:g} is outside {spec.low:g}..{spec.high:g}")
+
+
+def b_text(b: float) -> str:
+    return "inf" if math.isinf(b) else f"{b:g}"
+
+
+def json_b(b: float):
+    return "inf" if math.isinf(b) else b
+
+
+def run_label(args, b: float) -> str:
+    """``b = 0.1`` and, with --gen-b, the generators that differ: ``b = 0.1 (gen3 0.2)``."""
+    others = ", ".join(f"gen{i + 1} {b_text(v)}" for i, v in sorted(args.gen_limits.items()))
+    return f"b = {b_text(b)}" + (f" ({others})" if others else "")
+
+
+def recording_name(args, b: float) -> str:
+    """``<case>_<scenario>_b<b>[_gen<i>-<b_i>...].mcap``."""
+    others = "".join(f"_gen{i + 1}-{b_text(v)}" for i, v in sorted(args.gen_limits.items()))
+    return f"{args.case}_{args.scenario}_b{b_text(b)}{others}.mcap"
+
+
+def run_metadata(args, plant: dict, controllers: dict) -> dict:
+    """The recording's ``nni_run`` record: the case, the scenario, every node's parameters, mode, rate, version."""
+    values = {key: value for key, value in args.scenario_values.items() if key != "scenario"}
+    return {"case": args.case, "scenario": {"name": args.scenario, **values}, "network_plant": plant,
+            "controllers": controllers, "mode": args.mode, "rate_hz": args.rate, "software_version": software_version()}
+
+
+def generator_result(outcome_json: dict, loop: dict, counts: dict, namespace: str) -> dict:
+    """One generator's entry in summary.json: its offline-style outcome, loop timing, counters, recorded counts."""
+    return {**outcome_json, "samples": int(loop["samples"]),
+            "latency_ms": {q: round(float(loop[f"latency_{q}_ms"]), 6) for q in ("p50", "p99", "max")
+                           if f"latency_{q}_ms" in loop},
+            "dropped_samples": int(loop["deadline_misses"]), "late_samples": int(loop["late"]),
+            "trust": {key: int(loop[key]) for key in SHOWN_COUNTERS if key in loop},
+            "max_abs_applied_power_pu": float(loop["max_abs_applied_power_pu"]),
+            "paired_controller": loop["paired_controller"],
+            "logger_counts": {topic: n for topic, n in counts.items() if topic.startswith(f"/{namespace}/")}}
+
+
+def run_one(args, b: float, env: dict):
+    """One run: logger, a controller per generator, the network plant; returns (summary entry, trajectory)."""
+    net, spaces = args.net, namespaces(args.net)
+    limits = battery_limits(net.size, b, args.gen_limits)
+    plant_params = plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration)
+    controllers = {f"/{ns}": controller_parameters(net, i, limits[i], args.rate, args.law) for i, ns in enumerate(spaces)}
+    recording = args.out / recording_name(args, b)
+    logs = args.out / "logs" / recording.stem
+    started = time.monotonic()
+    with Supervisor(env, logs) as procs:
+        logger = procs.start_node("mcap_logger", "nni_msgs_adapter.recording.mcap_logger", {
+            "output_path": str(recording), "discovery_period_s": 0.1,
+            "run_metadata": json.dumps(run_metadata(args, plant_params, controllers))})
+        started_controllers = [procs.start_node(f"controller_{ns}", CONTROLLER, controllers[f"/{ns}"],
+                                                ("-r", f"__ns:=/{ns}")) for ns in spaces]
+        plant = procs.start_node("network_plant", PLANT, plant_params)
+        wait_for_plant(plant, args, run_label(args, b), run_time_limit_s(args), SUMMARY_PREFIX)
+        try:
+            status = plant.wait_exit(procs.grace_s)
+        except ChildError as error:
+            raise CliError(str(error)) from None
+        if status != 0:
+            raise CliError(f"the network plant exited with status {status}: {plant.tail()}")
+        time.sleep(DRAIN_S)
+        for controller in started_controllers:
+            controller.stop()
+        if logger.stop() != 0:
+            raise CliError(f"the logger failed: {logger.tail()}")
+    wall_s = time.monotonic() - started
+    counts = logger_counts(logger.output())
+    loops = plant_summary(plant.output(), SUMMARY_PREFIX)
+    for ns in spaces:
+        recorded, sent = counts.get(f"/{ns}/pmu", 0), int(loops[ns]["measurements"])
+        if recorded < sent:
+            raise CliError(f"the recording {recording} is partial: the logger recorded {recorded} of the {sent} "
+                           f"measurements the plant sent to /{ns} (logs in {logs})")
+    runs = read_generator_runs(recording)
+    traj = network_trajectory(runs, net, [f"/{ns}" for ns in spaces], limits)
+    outcome = assess_network(traj)[0]
+    outcome_json = outcome.to_json()
+    result = {"b": json_b(b), "gen_b": {f"gen{i + 1}": json_b(v) for i, v in sorted(args.gen_limits.items())},
+              "reference": REFERENCE, **{k: v for k, v in outcome_json.items() if k != "generators"},
+              "mode": args.mode, "rate_hz": args.rate, "recording": str(recording), "wall_time_s": round(wall_s, 3),
+              "generators": {ns: generator_result(g, loops[ns], counts, ns)
+                             for ns, g in zip(spaces, outcome_json["generators"])}}
+    compromised = {ns: reasons for i, ns in enumerate(spaces)
+                   if (reasons := compromised_reasons(loops[ns], runs[f"/{ns}"], float(limits[i])))}
+    if compromised:
+        result["compromised"] = compromised
+    return result, outcome, traj, limits
+
+
+def loop_table(result: dict, net, limits) -> list[str]:
+    """Per generator: its b, loop latency, dropped and late samples, and the plant's counters."""
+    header = (f"  {'namespace':<9} {'generator':<9} {'b (pu)':>6}  {'latency p50/p99/max (ms)':>24} {'dropped':>7} "
+              f"{'late':>4}  " + " ".join(key.replace("_commands", "").replace("_", " ") for key in SHOWN_COUNTERS))
+    rows = [header]
+    for i, (ns, g) in enumerate(result["generators"].items()):
+        lat = g["latency_ms"]
+        latency = "/".join(f"{lat.get(q, math.nan):.2f}" for q in ("p50", "p99", "max"))
+        counters = " ".join(f"{g['trust'].get(key, 0):>{len(key.replace('_commands', '').replace('_', ' '))}}"
+                            for key in SHOWN_COUNTERS)
+        rows.append(f"  {'/' + ns:<9} {net.names[i]:<9} {b_text(float(limits[i])):>6}  {latency:>24} "
+                    f"{g['dropped_samples']:>7} {g['late_samples']:>4}  {counters}")
+    return rows
+
+
+def clipped_lines(result: dict) -> list[str]:
+    """One line per generator whose commands the plant clipped to the battery's rating (the run is then that rating's)."""
+    rating = next(spec.default for spec in plant_node_parameters() if spec.name == "battery_rating_pu")
+    return [f"  /{ns}: {g['trust']['clipped_commands']} command(s) beyond the battery's rating were clipped to it "
+            f"(the network plant's battery_rating_pu, {rating:g} pu): the battery there acted as one of {rating:g} pu"
+            for ns, g in result["generators"].items() if g["trust"].get("clipped_commands", 0)]
+
+
+def compromised_line(result: dict, limits, spaces) -> str:
+    """``COMPROMISED (not a valid result): gen3: 2 foreign commands; ...``."""
+    where = [f"/{ns}: {', '.join(compromised_words(float(limits[spaces.index(ns)]), reasons))}"
+             for ns, reasons in result["compromised"].items()]
+    return COMPROMISED_PREFIX + "; ".join(where)
+
+
+def main(argv=None) -> int:
+    """Entry point of ``nni-demo --case ...`` (called by :func:`nni_battery_controller.demo.main`)."""
+
+    def body():
+        signal.signal(signal.SIGTERM, signal.default_int_handler)
+        args = parse_arguments(argv)
+        env, domain = run_environment(args)
+        net, spaces = args.net, namespaces(args.net)
+        print(f"{PROG}: {args.case}, {net.size} generators (a controller process each, /{spaces[0]} .. /{spaces[-1]}), "
+              f"{args.mode}, {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}")
+        law = args.law
+        gains = ", ".join(f"{name} {'/'.join(f'{v:g}' for v in sorted(set(values.tolist())))}"
+                          for name, values in (("tau", law.tau_s), ("K", law.gain_k), ("L", law.gain_l),
+                                               ("alpha", law.alpha)))
+        print(f"  {args.description}; g measured, angle reference {REFERENCE}; {gains}")
+        results, plotted = [], []
+        for b in args.b:
+            result, outcome, traj, limits = run_one(args, b, env)
+            results.append(result)
+            plotted.append((f"{run_label(args, b)}, {args.mode}", traj, 0))
+            if "compromised" in result:
+                print(f"  {run_label(args, b)}: {compromised_line(result, limits, spaces)}")
+            else:
+                print(textwrap.indent(format_run(outcome, b, REFERENCE, net), "  "))
+            print("\n".join(loop_table(result, net, limits) + clipped_lines(result)))
+            print(f"  wall {result['wall_time_s']:.1f} s, recording {result['recording']}")
+        summary = write_summary(args.out, {
+            "case": args.case, "generators": list(net.names), "namespaces": list(spaces),
+            "mbase_mva": net.mbase_mva.tolist(), "scenario": args.scenario_values, "description": args.description,
+            "mode": args.mode, "rate_hz": args.rate, "runs": results})
+        figure = args.out / "figures.png"
+        plot_network(plotted, f"{args.case}: {args.description}; controllers {args.rate:g} Hz over ROS 2", figure)
+        print(f"wrote {summary}, {figure} and {len(results)} recording(s) in {args.out}")
+        return exit_status(PROG, results, "a battery was")
+
+    return run_cli(body, PROG)

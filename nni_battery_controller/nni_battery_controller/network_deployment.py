@@ -1,0 +1,117 @@
+"""One battery controller per generator of a network case: what each node of the deployment is given.
+
+Used by ``nni-demo --case`` and by ``launch/network.launch.py``, so that both
+start the same nodes with the same parameters, read from the case (how many
+generators, each one's pre-fault angle and power): generator i (1-based, case
+order) is namespace ``gen<i>``, where the network plant node publishes its
+PMU. Each controller runs the sampled H3-hat with g measured
+(``restoring_power: measured``): g_i = P_m,i - P_e,i(measured), its angle
+measured from its pre-fault angle, in pu of its machine's rating, as
+:mod:`nni_battery_controller.network_sim` does offline. Pure: no ROS import.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from nni_battery_controller.network_cli import DEFAULT_FAULT_BUS
+from nni_battery_controller.network_sim import NetworkLaw
+from nni_msgs_adapter.ros.defaults import controller_defaults
+from nni_plant_sim.network_scenarios import BusFault, LineTrip
+
+#: The disturbances the network plant node runs (of the offline study's, ``network_cli.NETWORK_SCENARIOS``).
+SCENARIOS = ("bus_fault", "line_trip")
+#: Subscribers each generator's ``pmu`` waits for before the plant starts: its controller and the MCAP logger.
+SUBSCRIBERS_PER_GENERATOR = 2
+
+
+def namespaces(net) -> tuple[str, ...]:
+    """``("gen1", ..., "gen<N>")``: the network plant node's namespace of each generator, in case order."""
+    return tuple(f"gen{i + 1}" for i in range(net.size))
+
+
+def generator_limits(items, n: int, name: str = "--gen-b") -> dict[int, float]:
+    """Per-generator battery limits from ``I=B`` words (I: generator number 1..n, B: pu or inf).
+
+    ``name`` is the option or argument the words came from, for the messages.
+
+    Returns ``{index (0-based): b}``; ValueError, naming the word, for a bad word,
+    a generator outside 1..n, a negative or NaN b, or a generator given twice.
+    """
+    limits: dict[int, float] = {}
+    for item in items:
+        number, sep, value = item.partition("=")
+        try:
+            index, b = int(number) - 1, float(value)
+        except ValueError:
+            index, b = -1, math.nan
+        if not sep or math.isnan(b):
+            raise ValueError(f"{name} takes I=B (generator number, battery limit in pu or inf), got {item!r}")
+        if not 0 <= index < n:
+            raise ValueError(f"{name} {item}: no generator {number} (the case has gen1 .. gen{n})")
+        if b < 0:
+            raise ValueError(f"{name} {item}: a battery limit must be >= 0")
+        if index in limits:
+            raise ValueError(f"{name}: generator {index + 1} given twice")
+        limits[index] = b
+    return limits
+
+
+def battery_limits(n: int, b: float, overrides: dict[int, float]) -> np.ndarray:
+    """The limit of each generator in one run (pu of its rating): ``b``, except where ``overrides`` says."""
+    limits = np.full(n, float(b))
+    for index, value in overrides.items():
+        limits[index] = value
+    return limits
+
+
+def default_law(net) -> NetworkLaw:
+    """The controller node's default gains (config/controller.yaml) at every generator."""
+    values = controller_defaults()
+    return NetworkLaw.uniform(net, values["tau_s"], values["gain_k"], values["gain_l"], values["alpha"])
+
+
+def controller_parameters(net, index: int, limit_pu: float, rate_hz: float, law: NetworkLaw) -> dict:
+    """Generator ``index``'s controller node parameters (pu of its machine's rating).
+
+    ``p_mech_pu`` is the machine's pre-fault mechanical power, which the pre-fault
+    electrical power equals; ``reference_angle_rad`` its pre-fault angle. The
+    node's SMIB model fields enter neither g (measured) nor the law, but the node
+    still checks P_M < P_max: where the default P_max would not exceed the
+    machine's P_m (IEEE 39's G10 runs at 1.0 pu of its rating), P_max is given
+    as twice P_m.
+    """
+    scale = float(net.mbase_mva[index] / net.base_mva)
+    p_mech = float(net.p_mech_pu[index]) / scale
+    params = {"restoring_power": "measured", "reference_angle_rad": float(net.delta_bar_rad[index]),
+              "p_mech_pu": p_mech, "battery_limit_pu": float(limit_pu), "sample_rate_hz": float(rate_hz),
+              "tau_s": float(law.tau_s[index]), "gain_k": float(law.gain_k[index]),
+              "gain_l": float(law.gain_l[index]), "alpha": float(law.alpha[index])}
+    if p_mech >= controller_defaults()["p_max_pu"]:
+        params["p_max_pu"] = 2.0 * p_mech
+    return params
+
+
+def default_fault_bus(case: str) -> int:
+    """The bus a bus fault is at when none is given: as ``nni-simulate --case``'s."""
+    return DEFAULT_FAULT_BUS[case]
+
+
+def scenario_parameters(scenario, trip_line=()) -> dict:
+    """The network plant node's scenario parameters for a BusFault or LineTrip (``trip_line``: FROM TO [CIRCUIT])."""
+    trip = {"trip_line": " ".join(map(str, trip_line))} if trip_line else {}
+    if isinstance(scenario, LineTrip):
+        return {"scenario": "line_trip", **trip}
+    if isinstance(scenario, BusFault):
+        return {"scenario": "bus_fault", "fault_bus": int(scenario.bus), "fault_r": float(scenario.impedance_pu.real),
+                "fault_x": float(scenario.impedance_pu.imag), "clearing_time": float(scenario.clearing_time_s),
+                **trip}
+    raise ValueError(f"the network plant node does not run {type(scenario).__name__}")
+
+
+def plant_parameters(case: str, scenario_values: dict, mode: str, rate_hz: float, duration_s: float) -> dict:
+    """The network plant node's parameters for one run (it waits for each generator's controller and the logger)."""
+    return {"case": case, **scenario_values, "mode": mode, "pmu_rate_hz": float(rate_hz),
+            "duration_s": float(duration_s), "wait_for_subscribers": SUBSCRIBERS_PER_GENERATOR}

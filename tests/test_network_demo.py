@@ -1,0 +1,359 @@
+"""``nni-demo --case`` and ``launch/network.launch.py``: a network with one controller per generator, as a user runs it.
+
+The demo runs over real processes and Fast DDS, in lockstep, a few simulated
+seconds; the launch file is checked through the node list it would create
+(``launch`` is not installable here), and that list is started as processes.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import re
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from importlib import metadata
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from nni_battery_controller.network_cli import format_run
+from nni_battery_controller.network_deployment import controller_parameters, default_law, generator_limits
+from nni_battery_controller.network_sim import NetworkLaw, assess_network, simulate_network
+from nni_msgs_adapter.recording.mcap_io import read_recording
+from nni_msgs_adapter.recording.runs import generator_runs, run_metadata
+from nni_plant_sim.cases import load_network
+from nni_plant_sim.network_scenarios import BusFault
+from rosproc import busy_processes, fresh_domain_id, node_processes, ros_env
+
+pytestmark = pytest.mark.ros
+
+DEMO = Path(sys.executable).parent / "nni-demo"
+LAUNCH_FILE = Path(__file__).resolve().parents[1] / "nni_battery_controller" / "launch" / "network.launch.py"
+
+
+def start_time(pid: int) -> int | None:
+    """A process's start time (clock ticks since boot, /proc/PID/stat field 22), None if it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return None if fields[0] == "Z" else int(fields[19])
+
+
+def children_of(pid: int) -> set[tuple[int, int]]:
+    """(pid, start time) of the live children of ``pid``."""
+    found = set()
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit():
+            try:
+                fields = (proc / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                found.add((int(proc.name), int(fields[19])))
+    return found
+
+
+def marked_env(domain: int) -> tuple[dict, str]:
+    """The demo's environment with a marker of this test, which every process it starts inherits."""
+    marker = uuid.uuid4().hex
+    return ros_env(domain, NNI_TEST_MARKER=marker), marker
+
+
+def marked_processes(marker: str) -> list[str]:
+    """Command lines of live processes whose environment holds ``marker`` (a test's demo and its children)."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        try:
+            if proc.name.isdigit() and f"NNI_TEST_MARKER={marker}".encode() in (proc / "environ").read_bytes().split(b"\0"):
+                if start_time(int(proc.name)) is not None:
+                    found.append((proc / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace"))
+        except OSError:
+            continue
+    return found
+
+
+def run_demo(args: list[str], domain: int, timeout: float = 600) -> tuple[subprocess.CompletedProcess, set, str]:
+    """Run nni-demo to the end; its result, every child process (pid, start time) seen while it ran, its marker."""
+    env, marker = marked_env(domain)
+    proc = subprocess.Popen([str(DEMO), *args, "--domain-id", str(domain)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    seen: set = set()
+    done = threading.Event()
+
+    def watch():
+        while not done.is_set():
+            seen.update(children_of(proc.pid))
+            time.sleep(0.05)
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    finally:
+        done.set()
+        watcher.join()
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err), seen, marker
+
+
+def assert_nothing_left(children: set, marker: str) -> None:
+    """No child the demo started is alive (same pid and start time), nor any process with its environment."""
+    alive = [(pid, started) for pid, started in children if start_time(pid) == started]
+    assert alive == [], f"left running: {alive}"
+    assert marked_processes(marker) == []
+
+
+def table_rows(text: str, names) -> dict[str, str]:
+    """The per-generator rows of a printed verdict table, by generator name (leading spaces dropped)."""
+    return {line.split()[0]: line.strip() for line in text.splitlines() if line.strip().split(" ")[0] in names}
+
+
+def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_and_leaves_nothing(tmp_path):
+    """2 s lockstep, b = 0.1 with gen2 at 0 (--gen-b), two busy processes beside it.
+
+    The printed verdict and generator rows are the offline study's (format_run of
+    simulate_network with the same limits) except the last-saturated column,
+    whose final sample the recording does not have: offline the controllers
+    answer the run's final sample too; in the loop nobody answers it.
+    """
+    domain = fresh_domain_id()
+    with busy_processes(2):
+        result, children, marker = run_demo(["--case", "kundur_two_area", "--b", "0.1", "--gen-b", "2=0", "--duration", "2",
+                                     "--out", str(tmp_path)], domain)
+    assert result.returncode == 0, result.stderr
+    assert len(children) == 6, "logger, four controllers, plant"
+    assert_nothing_left(children, marker)
+    net = load_network("kundur_two_area")
+    limits = np.array([0.1, 0.0, 0.1, 0.1])
+    offline = simulate_network(net, default_law(net), BusFault(net, 7, 0.1), [limits], 2.0, 50.0)
+    expected = format_run(assess_network(offline)[0], 0.1, "pmu", net)
+    printed = result.stdout
+    assert expected.splitlines()[0] in printed, printed
+    got, want = table_rows(printed, net.names), table_rows(expected, net.names)
+    assert set(got) == set(net.names)
+    for name in net.names:
+        assert got[name].split()[:6] == want[name].split()[:6], (got[name], want[name])
+    for i in range(4):
+        assert f"/gen{i + 1}" in printed and f"G{i + 1}@{i + 1}" in printed
+
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["case"] == "kundur_two_area" and summary["namespaces"] == ["gen1", "gen2", "gen3", "gen4"]
+    (run,) = summary["runs"]
+    assert run["b"] == 0.1 and run["gen_b"] == {"gen2": 0.0} and run["in_synchronism"] is True
+    assert "compromised" not in run
+    assert list(run["generators"]) == ["gen1", "gen2", "gen3", "gen4"]
+    for ns, values in run["generators"].items():
+        for key in ("name", "in_synchronism", "settled", "max_abs_battery_power_pu", "limit_pu", "latency_ms",
+                    "dropped_samples", "late_samples", "trust", "logger_counts"):
+            assert key in values, (ns, key)
+        assert values["samples"] == 100 and values["dropped_samples"] == 0
+        assert values["trust"]["foreign_commands"] == values["trust"]["writer_alarms"] == 0
+        assert values["logger_counts"][f"/{ns}/plant/state"] == 101
+        assert values["paired_controller"] == f"/{ns}/controller"
+    assert run["generators"]["gen2"]["limit_pu"] == 0 and run["generators"]["gen2"]["max_abs_battery_power_pu"] == 0
+    assert 0 < run["generators"]["gen1"]["max_abs_battery_power_pu"] <= 0.1
+
+    recording = read_recording(run["recording"])
+    runs = generator_runs(recording)
+    assert list(runs) == ["/gen1", "/gen2", "/gen3", "/gen4"]
+    for i, generator in enumerate(runs.values()):
+        np.testing.assert_allclose(generator.delta_rad, offline.delta_rad[:, i, 0], rtol=0, atol=1e-12)
+    meta = run_metadata(recording)
+    assert meta["case"] == "kundur_two_area" and list(meta["controllers"]) == ["/gen1", "/gen2", "/gen3", "/gen4"]
+    assert meta["controllers"]["/gen2"]["battery_limit_pu"] == 0.0
+    assert (tmp_path / "figures.png").stat().st_size > 0
+
+
+def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
+    """The issue's Done-when: ten controller processes, per-generator results, no process left (1 s lockstep).
+
+    No battery but at G10, unlimited there: from 0.32 s on, its controller asks for more than the
+    plant's 1 pu rating, which clips it; the demo says so for /gen10 alone.
+    """
+    domain = fresh_domain_id()
+    result, children, marker = run_demo(["--case", "ieee39", "--b", "0", "--gen-b", "10=inf", "--duration", "1",
+                                         "--out", str(tmp_path)], domain)
+    assert result.returncode == 0, result.stderr
+    assert len(children) == 12, "logger, ten controllers, plant"
+    assert_nothing_left(children, marker)
+    net = load_network("ieee39")
+    rows = table_rows(result.stdout, net.names)
+    assert set(rows) == set(net.names), result.stdout
+    loop_rows = [line for line in result.stdout.splitlines() if re.match(r"\s+/gen\d+\s+G\d+@\d+\s", line)]
+    assert [row.split()[0] for row in loop_rows] == [f"/gen{i}" for i in range(1, 11)]
+    (run,) = json.loads((tmp_path / "summary.json").read_text())["runs"]
+    assert list(run["generators"]) == [f"gen{i}" for i in range(1, 11)]
+    assert all(g["samples"] == 50 and g["dropped_samples"] == 0 for g in run["generators"].values())
+    clipped = [line.split(":")[0].strip() for line in result.stdout.splitlines() if "were clipped to it" in line]
+    assert clipped == ["/gen10"], result.stdout
+    assert run["generators"]["gen10"]["trust"]["clipped_commands"] > 0
+    assert run["generators"]["gen10"]["max_abs_battery_power_pu"] == 1.0
+    assert sorted(p.name for p in (tmp_path / "logs").glob("*/controller_gen*.log")) == sorted(
+        f"controller_gen{i}.log" for i in range(1, 11))
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--case", "kundur_two_area", "--rerun", "save", "x.rrd"], "--rerun does not apply to --case"),
+    (["--case", "kundur_two_area", "--H", "4"], "--H does not apply to --case: the machines"),
+    (["--case", "ieee39", "--reference", "coi"], "--reference does not apply to --case"),
+    (["--case", "kundur_two_area", "--params-file", "x.yaml"], "--params-file does not apply to --case"),
+    (["--case", "kundur_two_area", "--scenario", "line_trip", "--trip-line", "7", "8", "--clearing-time", "0.2"],
+     "--clearing-time does not apply to --scenario line_trip"),
+    (["--case", "kundur_two_area", "--fault-bus", "99"], "bus 99 is not in the case"),
+    (["--case", "kundur_two_area", "--gen-b", "5=0.1"], "--gen-b 5=0.1: no generator 5 (the case has gen1 .. gen4)"),
+    (["--case", "kundur_two_area", "--K", "1", "1", "1", "2"], "generator G4@4: K must be less than L"),
+    (["--gen-b", "2=0.1"], "--gen-b applies to a network of generators only"),
+    (["--case", "kundur_two_area", "--duration", "1e-9"], "network plant parameter duration_s = 1e-09 is outside"),
+    (["--case", "kundur_two_area", "--tau", "1e-5"], "controller parameter tau_s = 1e-05 is outside 0.0001..100"),
+])
+def test_an_option_that_does_not_apply_is_refused_with_one_line(tmp_path, args, message):
+    domain = fresh_domain_id()
+    result = subprocess.run([str(DEMO), *args, "--out", str(tmp_path / "o"), "--domain-id", str(domain)],
+                            env=ros_env(domain), capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert result.returncode == 2, result
+    assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr, result.stderr
+    assert message in result.stderr, result.stderr
+    assert not (tmp_path / "o").exists(), "nothing started, nothing written"
+
+
+def test_per_generator_limits_and_the_model_check_of_a_machine_at_full_power():
+    assert generator_limits(["3=0.2", "1=inf"], 4) == {2: 0.2, 0: float("inf")}
+    for words, message in ((["3"], "takes I=B"), (["0=0.1"], "no generator 0"), (["2=-1"], ">= 0"),
+                           (["2=0.1", "2=0.3"], "given twice"), (["x=1"], "takes I=B")):
+        with pytest.raises(ValueError, match=message):
+            generator_limits(words, 4)
+    # A machine at (or above) the controller's default P_max: the node would refuse P_M >= P_max.
+    net = SimpleNamespace(mbase_mva=np.array([500.0]), base_mva=100.0, p_mech_pu=np.array([5.5]),
+                          delta_bar_rad=np.array([0.4]), names=("G1",))
+    law = NetworkLaw(net, np.array([0.1]), np.array([1.0]), np.array([1.1]), np.array([1.0]))
+    params = controller_parameters(net, 0, 0.1, 50.0, law)
+    assert params["p_mech_pu"] == pytest.approx(1.1) and params["p_max_pu"] > params["p_mech_pu"]
+    from nni_battery_controller.controller_config import ControllerConfig, parameters
+
+    ControllerConfig({**{spec.name: spec.default for spec in parameters()}, **params})  # accepted by the node's check
+
+
+# --- the launch file ----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def network_launch():
+    """launch/network.launch.py imported as a module (it imports ``launch`` only to build the description)."""
+    spec = importlib.util.spec_from_file_location("network_launch", LAUNCH_FILE)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert "launch" not in sys.modules
+    return module
+
+
+def console_script_module(executable: str) -> str:
+    """The module a ``ros2 run`` executable (a console script of our packages) runs."""
+    (entry,) = [e for e in metadata.entry_points(group="console_scripts", name=executable)]
+    return entry.value.split(":")[0]
+
+
+@pytest.mark.parametrize("case", ["kundur_two_area", "ieee39"])
+def test_the_launch_file_creates_one_controller_per_generator_of_the_case(network_launch, case):
+    net = load_network(case)
+    nodes = network_launch.network_nodes({"case": case, "gen_b": "2=inf", "duration_s": "3.0"})
+    kinds = [(n["package"], n["executable"]) for n in nodes]
+    assert kinds == [("nni_msgs_adapter", "mcap_logger"), *[("nni_battery_controller", "controller_node")] * net.size,
+                     ("nni_plant_sim", "network_plant_node")]
+    controllers = nodes[1:-1]
+    assert [n["namespace"] for n in controllers] == [f"gen{i + 1}" for i in range(net.size)]
+    scale = net.mbase_mva / net.base_mva
+    for i, node in enumerate(controllers):
+        params = node["parameters"]
+        assert params["restoring_power"] == "measured"
+        assert params["reference_angle_rad"] == net.delta_bar_rad[i]
+        assert params["p_mech_pu"] == pytest.approx(net.p_mech_pu[i] / scale[i], rel=1e-15)
+        assert params["battery_limit_pu"] == (float("inf") if i == 1 else 0.1)
+    plant = nodes[-1]["parameters"]
+    assert plant["case"] == case and plant["duration_s"] == 3.0 and plant["wait_for_subscribers"] == 2
+    assert plant["fault_bus"] == {"kundur_two_area": 7, "ieee39": 16}[case]
+    for node in nodes:
+        module = importlib.import_module(console_script_module(node["executable"]))
+        declared = {spec.name for spec in module.parameters()}
+        assert set(node["parameters"]) <= declared, (node["executable"], set(node["parameters"]) - declared)
+
+
+def test_the_launch_file_refuses_what_cannot_work(network_launch):
+    for given, message in (({"fault_bus": "99"}, "bus 99 is not in the case"),
+                           ({"scenario": "mechanical_step"}, "scenario must be one of bus_fault, line_trip"),
+                           ({"gen_b": "7=0.1"}, "gen_b 7=0.1: no generator 7"),
+                           ({"gain_k": "2.0"}, "K must be less than L")):
+        with pytest.raises(Exception, match=message):
+            network_launch.network_nodes(given)
+
+
+def test_the_launch_files_nodes_run_the_network_and_record_every_generator(network_launch, tmp_path):
+    """The node list, started as the processes ros2 launch would start: a 1 s lockstep Kundur run, one MCAP."""
+    domain, path = fresh_domain_id(), tmp_path / "network.mcap"
+    nodes = network_launch.network_nodes({"duration_s": "1.0", "output_path": str(path)})
+    with node_processes(tmp_path, domain) as start:
+        started = [start(f"{n['executable']}_{n['namespace'] or 'root'}", console_script_module(n["executable"]),
+                         {**n["parameters"], **({"discovery_period_s": 0.1} if n["name"] == "mcap_logger" else {})},
+                         ("-r", f"__ns:=/{n['namespace']}") if n["namespace"] else ())
+                   for n in nodes]
+        plant, logger = started[-1], started[0]
+        assert plant.wait(timeout=180.0) == 0, plant.output()
+        time.sleep(0.5)  # the last reliable messages land
+        assert logger.interrupt(15.0) == 0, logger.output()
+    runs = generator_runs(read_recording(path))
+    assert list(runs) == ["/gen1", "/gen2", "/gen3", "/gen4"]
+    assert all(run.stamp_ns.size == 51 for run in runs.values()), "1 s at 50 frames/s: t_0 .. t_50"
+
+
+def test_a_killed_network_demo_takes_every_process_with_it(tmp_path):
+    """SIGKILL mid-run (realtime, 60 s): the plant, the four controllers and the logger end with it."""
+    domain = fresh_domain_id()
+    env, marker = marked_env(domain)
+    demo = subprocess.Popen([str(DEMO), "--case", "kundur_two_area", "--mode", "realtime", "--b", "0.1",
+                             "--duration", "60", "--out", str(tmp_path), "--domain-id", str(domain)],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    children: set = set()
+    deadline = time.monotonic() + 120
+    while len(children) < 6 and time.monotonic() < deadline:
+        children |= children_of(demo.pid)
+        time.sleep(0.2)
+    assert len(children) == 6, "logger, four controllers and the plant should be running"
+    demo.kill()
+    demo.wait(timeout=60)
+    deadline = time.monotonic() + 30
+    while any(start_time(pid) == started for pid, started in children) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert_nothing_left(children, marker)
+
+
+def test_a_second_writer_on_one_generators_battery_makes_the_run_compromised(tmp_path):
+    """A rogue writer on /gen2/battery/command from the start (realtime, 1 s): exit 3, that generator named."""
+    from nni_msgs_adapter.ros import contract
+    from rosproc import Probe
+
+    domain = fresh_domain_id()
+    rogue = Probe(domain, (), namespace="gen2", node_name="rogue")
+    rogue.advertise(contract.TOPIC_BATTERY_COMMAND)
+    demo = subprocess.Popen([str(DEMO), "--case", "kundur_two_area", "--mode", "realtime", "--b", "0.1",
+                             "--duration", "1", "--out", str(tmp_path), "--domain-id", str(domain)],
+                            env=ros_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        in_loop = rogue.wait_matched(contract.TOPIC_BATTERY_COMMAND, 2, 120.0)  # the logger's and the plant's
+        stdout, stderr = demo.communicate(timeout=300)
+    finally:
+        demo.kill()
+        rogue.close()
+    assert in_loop, "the rogue's writer never matched the plant's battery/command subscription"
+    assert demo.returncode == 3, stdout + stderr
+    (line,) = [line for line in stdout.splitlines() if "COMPROMISED" in line]
+    assert line.strip().startswith("b = 0.1: COMPROMISED (not a valid result): /gen2: ") and "/gen1" not in line
+    assert "writer alarms" in line
+    assert len(stderr.strip().splitlines()) == 1 and "1 of 1 run(s) compromised" in stderr
+    (run,) = json.loads((tmp_path / "summary.json").read_text())["runs"]
+    assert list(run["compromised"]) == ["gen2"] and run["compromised"]["gen2"]["writer_alarms"] > 0
+    assert run["generators"]["gen2"]["max_abs_applied_power_pu"] <= 0.1
