@@ -58,6 +58,8 @@ NETWORK_BATTERY_LIMIT_PU = 0.1
 #: Lockstep scaling: None is N = 1 (the SMIB plant node), then the network cases by size.
 NETWORK_LOCKSTEP_CASES = (None, "kundur_two_area", "ieee39", "kundur_ring_52")
 NETWORK_LOCKSTEP_QUICK_CASES = (None, "kundur_two_area")
+#: Participants rmw_fastrtps (Jazzy) discovers on one host under ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST.
+LOCALHOST_PEER_RANGE = 32
 #: What --only selects (all by default).
 BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime")
 #: The composed deployment of issue 14 (one process, N controller nodes on one executor).
@@ -135,6 +137,7 @@ def pingpong(env: dict, log_dir: Path, mode: str, rate_hz: float = 100.0, durati
     from bench.pingpong import RESULT_PREFIX, fanout_namespaces
 
     echo = [sys.executable, "-m", "bench.pingpong", "echo"]
+    env, peer_range = dds_environment(env, log_dir, fanout + 1)
     with children(env, log_dir) as procs:
         if fanout:
             for ns in fanout_namespaces(fanout):
@@ -151,8 +154,45 @@ def pingpong(env: dict, log_dir: Path, mode: str, rate_hz: float = 100.0, durati
         stop_together(procs)
         for line in procs["ping"].output().splitlines():
             if line.startswith(RESULT_PREFIX):
-                return {**json.loads(line[len(RESULT_PREFIX):]), "echo_rss_kib": echo_rss}
+                return {**json.loads(line[len(RESULT_PREFIX):]), "echo_rss_kib": echo_rss,
+                        "peer_range": peer_range}
     raise RuntimeError("ping-pong printed no result")
+
+
+def dds_environment(env: dict, log_dir: Path, participants: int) -> tuple[dict, int | None]:
+    """``env`` for a run of ``participants`` processes on this host; with more than rmw's localhost range, a profile.
+
+    rmw_fastrtps (Jazzy) under ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST sends
+    its discovery announcements to the ports of the first
+    ``LOCALHOST_PEER_RANGE`` participants of the domain only (its UDP
+    transport's ``maxInitialPeersRange``): a 33rd process is never discovered
+    (measured: with 52 controllers the plant never saw gen33's). Beyond it,
+    the run gets the shipped loopback profile with ``maxInitialPeersRange``
+    raised on its UDP transport (written to the run's log directory; the
+    nodes say on their log that a profile of the user's own is in use).
+    Returns the environment and the range set (None: the shipped profile).
+    """
+    if participants <= LOCALHOST_PEER_RANGE:
+        return env, None
+    import xml.etree.ElementTree as ElementTree
+
+    from nni_msgs_adapter.ros.node_main import DEFAULT_NETWORK, network_profile
+
+    peers = -(-participants // LOCALHOST_PEER_RANGE) * LOCALHOST_PEER_RANGE
+    namespace = "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"
+    ElementTree.register_namespace("", namespace)
+    tree = ElementTree.parse(network_profile(DEFAULT_NETWORK))
+    udp = [d for d in tree.iter(f"{{{namespace}}}transport_descriptor")
+           if d.findtext(f"{{{namespace}}}type") == "UDPv4"]
+    if len(udp) != 1:
+        raise RuntimeError(f"the shipped DDS profile has {len(udp)} UDPv4 transports, expected one")
+    peer_range = ElementTree.Element(f"{{{namespace}}}maxInitialPeersRange")
+    peer_range.text = str(peers)
+    udp[0].insert(2, peer_range)
+    log_dir.mkdir(parents=True, exist_ok=True)
+    path = log_dir / "fastdds_profiles_many_participants.xml"
+    tree.write(path, xml_declaration=True, encoding="UTF-8")
+    return dict(env, FASTRTPS_DEFAULT_PROFILES_FILE=str(path)), peers
 
 
 def stop_together(procs: Supervisor) -> None:
@@ -329,6 +369,7 @@ def network_loop(env: dict, log_dir: Path, case: str, mode: str, rate_hz: float,
 
     net = load_network(case)
     namespaces = [f"/gen{i + 1}" for i in range(net.size)]
+    env, peer_range = dds_environment(env, log_dir, 2 if composed else net.size + 1)
     with children(env, log_dir) as procs:
         if composed:
             params_file = log_dir / "controllers.yaml"  # JSON is YAML: one block per namespace
@@ -350,7 +391,8 @@ def network_loop(env: dict, log_dir: Path, case: str, mode: str, rate_hz: float,
         stop_together(procs)
         for line in plant.output().splitlines():
             if line.startswith(SUMMARY_PREFIX):
-                return {"summary": json.loads(line[len(SUMMARY_PREFIX):]), "rss_kib": rss, "size": net.size}
+                return {"summary": json.loads(line[len(SUMMARY_PREFIX):]), "rss_kib": rss, "size": net.size,
+                        "peer_range": peer_range}
     raise RuntimeError(f"the network plant ({case}) printed no summary")
 
 
@@ -391,7 +433,8 @@ def bench_network_lockstep(env, log_root: Path, cases, rate_hz: float, sim_durat
                 raise RuntimeError(f"lockstep {label}: the plant's final status shows no run ({first})")
             round_trip_s = float(np.mean(chained["round_trips_ns"])) * 1e-9
             pairs.append({"round_trip_s": round_trip_s, "sim_s": sim_s, "wall_s": wall_s, "summary": summary,
-                          "floor_ratio": ((1.0 / rate_hz) / round_trip_s) / (sim_s / wall_s)})
+                          "floor_ratio": ((1.0 / rate_hz) / round_trip_s) / (sim_s / wall_s),
+                          "peer_range": chained["peer_range"]})
         sim_s, wall_s = sum(p["sim_s"] for p in pairs), sum(p["wall_s"] for p in pairs)
         round_trip_s = float(np.median([p["round_trip_s"] for p in pairs]))
         rows.append({
@@ -403,6 +446,7 @@ def bench_network_lockstep(env, log_root: Path, cases, rate_hz: float, sim_durat
             **{f"{name}_ms": {q: float(np.median([generator_percentiles(p["summary"], name)[q] for p in pairs]))
                               for q in ("p50", "p99")} for name in ("latency", "turnaround")},
             "deadline_misses": sum(int(v["deadline_misses"]) for p in pairs for v in p["summary"].values()),
+            "peer_range": pairs[0]["peer_range"],
         })
     return rows
 
@@ -675,12 +719,21 @@ def network_lockstep_section(rows: list[dict]) -> list[str]:
              "| misses |", "|---:|---|---:|---:|---:|---|---:|---:|---|---|---:|"]
     for row in rows:
         rounds = ", ".join(f"{ratio:.2f}" for ratio in row["round_ratios"])
-        lines.append(f"| {row['generators']} | {row['case']} | {row['sim_duration_s']:g} / {row['run_wall_s']:.2f} | "
+        lines.append(f"| {row['generators']}{' *' if row['peer_range'] else ''} | {row['case']} | {row['sim_duration_s']:g} / {row['run_wall_s']:.2f} | "
                      f"{row['throughput']:.1f} | {row['floor_throughput']:.1f} | **{row['floor_ratio']:.2f}** "
                      f"({rounds}) | {row['cycle_ms']:.3f} | {row['round_trip_mean_ms']:.3f} | "
                      f"{row['latency_ms']['p50']:.3f} / {row['latency_ms']['p99']:.3f} | "
                      f"{row['turnaround_ms']['p50']:.3f} / {row['turnaround_ms']['p99']:.3f} | "
                      f"{row['deadline_misses']} |")
+    widened = [row for row in rows if row["peer_range"]]
+    if widened:
+        lines += ["", f"\\* More than {LOCALHOST_PEER_RANGE} processes: rmw_fastrtps (Jazzy) under "
+                      f"ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST discovers the first {LOCALHOST_PEER_RANGE} "
+                      "participants of a domain on the host only (its `maxInitialPeersRange`), so with the shipped "
+                      "DDS profile a 33rd controller is never discovered and the plant waits for it until "
+                      "`wait_timeout_s`. These rows (loop and fan-out alike) ran with the shipped profile plus "
+                      f"`maxInitialPeersRange` {widened[0]['peer_range']} on its UDP transport "
+                      "(`bench/__main__.py: dds_environment`)."]
     cost = per_generator_cost(rows)
     if cost:
         lines += ["", f"Cost per added generator (least-squares slope over N = "
