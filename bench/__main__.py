@@ -12,7 +12,16 @@ Each table sets a measurement beside a baseline taken in the same run:
    round trip, in alternating rounds;
 3. the region-of-attraction sweep, 200 x 200 x 4, vectorised, beside the
    per-trajectory scipy solve_ivp loop (``simulate_continuous``) on a subsample,
-   extrapolated, with the fraction of cells where the two disagree.
+   extrapolated, with the fraction of cells where the two disagree;
+4. network lockstep throughput (issue 14) of the network plant node with one
+   controller process per generator for N = 1 (the SMIB plant node), 4
+   (kundur_two_area), 10 (ieee39) and 52 (kundur_ring_52) beside a chained
+   fan-out ping-pong to N echo processes, in alternating rounds, and the cost
+   per added generator;
+5. network realtime at 50 frames/s, ieee39's 10 controllers as separate
+   processes and (when ``nni_battery_controller.composed_controllers`` is in
+   the tree) composed in one, per generator beside the timed fan-out;
+6. memory (and CPU) per controller process and per composed controller.
 
 Node processes are started exactly as ``nni-demo`` starts them; discovery stays
 on localhost (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) in a ROS domain of the
@@ -36,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nni_msgs_adapter.ros.processes import Supervisor
+from nni_msgs_adapter.ros.processes import ChildError, Supervisor
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Targets of issue 5 (ratios are measured in the same run).
@@ -55,9 +64,10 @@ NETWORK_FLOOR_RATIO_TARGET = 2.0
 #: The network benchmarks' PMU rate (the network plant's default) and battery limit (the network tests').
 NETWORK_RATE_HZ = 50.0
 NETWORK_BATTERY_LIMIT_PU = 0.1
-#: Lockstep scaling: None is N = 1 (the SMIB plant node), then the network cases by size.
-NETWORK_LOCKSTEP_CASES = (None, "kundur_two_area", "ieee39", "kundur_ring_52")
-NETWORK_LOCKSTEP_QUICK_CASES = (None, "kundur_two_area")
+#: Lockstep scaling, (case, alternating rounds): None is N = 1 (the SMIB plant node), then the network cases
+#: by size; the 52 controller processes take minutes to start and discover each other, so one round there.
+NETWORK_LOCKSTEP_CASES = ((None, 3), ("kundur_two_area", 3), ("ieee39", 3), ("kundur_ring_52", 1))
+NETWORK_LOCKSTEP_QUICK_CASES = ((None, 1), ("kundur_two_area", 1))
 #: Participants rmw_fastrtps (Jazzy) discovers on one host under ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST.
 LOCALHOST_PEER_RANGE = 32
 #: What --only selects (all by default).
@@ -372,9 +382,12 @@ def network_loop(env: dict, log_dir: Path, case: str, mode: str, rate_hz: float,
     env, peer_range = dds_environment(env, log_dir, 2 if composed else net.size + 1)
     with children(env, log_dir) as procs:
         if composed:
-            params_file = log_dir / "controllers.yaml"  # JSON is YAML: one block per namespace
-            params_file.write_text(json.dumps({f"{ns}/controller": {"ros__parameters": network_controller_parameters(
-                net, i, rate_hz)} for i, ns in enumerate(namespaces)}, indent=1))
+            import yaml
+
+            params_file = log_dir / "controllers.yaml"  # one section per node, as composed_controllers reads them
+            log_dir.mkdir(parents=True, exist_ok=True)
+            params_file.write_text(yaml.safe_dump({f"{ns}/controller": {"ros__parameters": network_controller_parameters(
+                net, i, rate_hz)} for i, ns in enumerate(namespaces)}, default_flow_style=False))
             controllers = [procs.start_node("controllers", COMPOSED_MODULE, {"namespaces": namespaces},
                                             ("--params-file", str(params_file)))]
         else:
@@ -384,16 +397,34 @@ def network_loop(env: dict, log_dir: Path, case: str, mode: str, rate_hz: float,
         plant = procs.start_node("plant", "nni_plant_sim.network_plant_node",
                                  {"case": case, "mode": mode, "duration_s": duration_s, "pmu_rate_hz": rate_hz,
                                   "wait_for_subscribers": 1, "wait_timeout_s": 600.0})
-        status = plant.wait_exit(120.0 + 5.0 * net.size + duration_s * (1.0 if mode == "realtime" else 4.0))
+        limit_s = 120.0 + 5.0 * net.size + duration_s * (1.0 if mode == "realtime" else 4.0)
+        started = time.monotonic()
+        plant.wait_for_line("started in", limit_s)
+        run_started, cpu_started = time.monotonic(), [cpu_seconds(child.pid) for child in controllers]
+        partial = None
+        try:
+            status = plant.wait_exit(max(1.0, limit_s - (run_started - started)))
+        except ChildError:
+            partial, status = f"stopped after {limit_s:.0f} s of wall time", None
+        run_s = time.monotonic() - run_started
+        rss = [rss_kib(child.pid) for child in controllers]
+        cpu = [(cpu_seconds(child.pid) - before) / run_s for child, before in zip(controllers, cpu_started)]
+        if partial:
+            status = plant.stop()  # SIGINT: the plant prints its summary of the run so far
         if status != 0:
             raise RuntimeError(f"network plant ({case}) exited with {status}: {plant.tail(400)}")
-        rss = [rss_kib(child.pid) for child in controllers]
         stop_together(procs)
         for line in plant.output().splitlines():
             if line.startswith(SUMMARY_PREFIX):
-                return {"summary": json.loads(line[len(SUMMARY_PREFIX):]), "rss_kib": rss, "size": net.size,
-                        "peer_range": peer_range}
+                return {"summary": json.loads(line[len(SUMMARY_PREFIX):]), "rss_kib": rss, "cpu_share": cpu,
+                        "size": net.size, "peer_range": peer_range, "partial": partial}
     raise RuntimeError(f"the network plant ({case}) printed no summary")
+
+
+def cpu_seconds(pid: int) -> float:
+    """User and system CPU time of a running process so far, s (/proc/<pid>/stat)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def generator_percentiles(summary: dict, name: str) -> dict:
@@ -403,20 +434,21 @@ def generator_percentiles(summary: dict, name: str) -> dict:
     return {"p50": float(np.median(p50)), "p99": float(np.median(p99)), "p99_max": max(p99)}
 
 
-def bench_network_lockstep(env, log_root: Path, cases, rate_hz: float, sim_duration_s: float, chained_samples: int,
-                           rounds: int) -> list[dict]:
+def bench_network_lockstep(env, log_root: Path, cases, rate_hz: float, sim_duration_s: float,
+                           chained_samples: int) -> list[dict]:
     """Lockstep of each case with N controller processes, beside a chained fan-out to N echoes, alternating.
 
-    ``None`` in ``cases`` is N = 1: the SMIB plant node with its controller
-    beside the one-echo chained ping-pong (section 2's pair, at this rate).
+    ``cases`` holds (case, rounds); the simulated time and the round trips are
+    split among the rounds. Case ``None`` is N = 1: the SMIB plant node with
+    its controller beside the one-echo chained ping-pong (section 2's pair).
     """
     rows = []
-    for case in cases:
+    for case, rounds in cases:
         part_s, part_samples = sim_duration_s / rounds, chained_samples // rounds
         label = case or "smib"
         print(f"bench: network lockstep {label} at {rate_hz:g}/s, {rounds} x (chained fan-out of {part_samples}, "
               f"{part_s:g} simulated s of the loop)", file=sys.stderr, flush=True)
-        pairs = []
+        pairs, partial = [], None
         for index in range(1, rounds + 1):
             if case is None:
                 chained = pingpong(env, log_root / f"fanout_chained_{label}_{index}", "chained", samples=part_samples)
@@ -424,7 +456,7 @@ def bench_network_lockstep(env, log_root: Path, cases, rate_hz: float, sim_durat
                 summary, size = {"gen1": final}, 1
             else:
                 run = network_loop(env, log_root / f"net_lockstep_{label}_{index}", case, "lockstep", rate_hz, part_s)
-                summary, size = run["summary"], run["size"]
+                summary, size, partial = run["summary"], run["size"], run["partial"] or partial
                 chained = pingpong(env, log_root / f"fanout_chained_{label}_{index}", "chained",
                                    samples=part_samples, fanout=size)
             first = next(iter(summary.values()))
@@ -446,7 +478,7 @@ def bench_network_lockstep(env, log_root: Path, cases, rate_hz: float, sim_durat
             **{f"{name}_ms": {q: float(np.median([generator_percentiles(p["summary"], name)[q] for p in pairs]))
                               for q in ("p50", "p99")} for name in ("latency", "turnaround")},
             "deadline_misses": sum(int(v["deadline_misses"]) for p in pairs for v in p["summary"].values()),
-            "peer_range": pairs[0]["peer_range"],
+            "peer_range": pairs[0]["peer_range"], "partial": partial,
         })
     return rows
 
@@ -504,9 +536,11 @@ def bench_network_realtime(env, log_root: Path, case: str, rate_hz: float, durat
                          "measurements": sum(int(f["measurements"]) for f in finals)}
         generators.append(row)
     memory = {"separate_kib": [kib for run in loops["separate"] for kib in run["rss_kib"]],
+              "separate_cpu": [share for run in loops["separate"] for share in run["cpu_share"]],
               "echo_kib": [kib for ping in pings for kib in ping["echo_rss_kib"]]}
     if composed:
         memory["composed_kib"] = [run["rss_kib"][0] for run in loops["composed"]]
+        memory["composed_cpu"] = [run["cpu_share"][0] for run in loops["composed"]]
     return {"case": case, "generators": generators, "size": len(namespaces), "rate_hz": rate_hz,
             "duration_s": duration_s, "rounds": rounds, "kinds": kinds, "memory": memory,
             "pingpong_deadline_misses": sum(ping["deadline_misses"] for ping in pings)}
@@ -579,6 +613,10 @@ def report(command: str, machine: dict, quick: bool, latency, share, lockstep, r
               f"{machine['domain_id']}",
               f"- load average (1, 5, 15 min) at start {fmt_load(machine['load_average_at_start'])}, "
               f"at end {fmt_load(machine['load_average_at_end'])} (other work on the machine shows here)", ""]
+    if max(machine["load_average_at_start"][0], machine["load_average_at_end"][0]) > 0.5 * machine["cores"]:
+        lines += [f"> **Measured on a loaded machine**: a 1-minute load average above half the {machine['cores']} "
+                  "cores at the start or the end of the run (other work ran beside the benchmarks); the numbers are "
+                  "noisy, the ratios (each against a baseline measured back to back) less so.", ""]
     if latency:
         lines += ["## 1. Closed-loop latency (realtime) beside a bare rclpy ping-pong", "",
                   "Loop: the plant and controller nodes as `nni-demo` starts them (no logger), realtime mode, "
@@ -710,16 +748,17 @@ def network_lockstep_section(rows: list[dict]) -> list[str]:
              "(N = 10), `kundur_ring_52` (N = 52: 13 copies of the two-area system tied in a ring, "
              "`nni_plant_sim/cases/replicated.py`). Floor: a chained fan-out ping-pong to N echo processes "
              "(`bench/pingpong.py --fanout N`: one ping to every echo, the next when all N pongs are in; "
-             "N = 1: one echo), period / mean round trip. Each N runs as "
-             f"{rows[0]['rounds']} alternating pair(s) (lockstep run, then fan-out); floor / throughput is the "
-             "median of the pairs' ratios (rounds in brackets). Cycle = wall time per sample; latency and "
+             "N = 1: one echo), period / mean round trip. Each N runs as alternating pairs (lockstep run, then "
+             "fan-out), the simulated time and round trips split among them; floor / throughput is the median of "
+             "the pairs' ratios (each pair's in brackets). Cycle = wall time per sample; latency and "
              "turnaround: the median over generators of each generator's p50 and p99 (plant diagnostics).", "",
              "| N | case | simulated s / wall s | throughput (x real time) | floor (x real time) | floor / throughput "
              "(rounds) | cycle (ms) | fan-out round trip (ms) | latency p50 / p99 (ms) | turnaround p50 / p99 (ms) "
              "| misses |", "|---:|---|---:|---:|---:|---|---:|---:|---|---|---:|"]
     for row in rows:
         rounds = ", ".join(f"{ratio:.2f}" for ratio in row["round_ratios"])
-        lines.append(f"| {row['generators']}{' *' if row['peer_range'] else ''} | {row['case']} | {row['sim_duration_s']:g} / {row['run_wall_s']:.2f} | "
+        case = f"{row['case']} (**partial**: {row['partial']})" if row["partial"] else row["case"]
+        lines.append(f"| {row['generators']}{' *' if row['peer_range'] else ''} | {case} | {row['sim_duration_s']:g} / {row['run_wall_s']:.2f} | "
                      f"{row['throughput']:.1f} | {row['floor_throughput']:.1f} | **{row['floor_ratio']:.2f}** "
                      f"({rounds}) | {row['cycle_ms']:.3f} | {row['round_trip_mean_ms']:.3f} | "
                      f"{row['latency_ms']['p50']:.3f} / {row['latency_ms']['p99']:.3f} | "
@@ -791,17 +830,21 @@ def network_realtime_section(result: dict) -> list[str]:
     lines += ["", "## 6. Memory per controller (issue 14)", "",
               "Resident set size (`VmRSS`) at the end of each realtime run of section 5, while the processes are "
               "up; beside it a bare echo process of the fan-out (rclpy, one node, one subscription and one "
-              "publisher), the floor of any ROS 2 Python process here.", "",
-              "| process | runs x processes | RSS median (MiB) | min .. max (MiB) | per controller (MiB) |",
-              "|---|---:|---:|---|---:|"]
-    for name, kib, per in (("bare echo (fan-out)", memory["echo_kib"], 1),
-                           ("controller_node, one process per generator", memory["separate_kib"], 1),
-                           ("composed_controllers, all in one process", memory.get("composed_kib"), result["size"])):
+              "publisher), the floor of any ROS 2 Python process here. CPU: each controller process's user + "
+              "system time from the plant's start of the run to its end, over that wall time (% of one core).", "",
+              "| process | runs x processes | RSS median (MiB) | min .. max (MiB) | RSS per controller (MiB) "
+              "| CPU per controller, median (% of a core) |", "|---|---:|---:|---|---:|---:|"]
+    for name, kib, cpu, per in (
+            ("bare echo (fan-out)", memory["echo_kib"], None, 1),
+            ("controller_node, one process per generator", memory["separate_kib"], memory["separate_cpu"], 1),
+            ("composed_controllers, all in one process", memory.get("composed_kib"), memory.get("composed_cpu"),
+             result["size"])):
         if not kib:
-            lines.append(f"| {name} | - | not measured | - | - |")
+            lines.append(f"| {name} | - | not measured | - | - | - |")
             continue
+        share = "-" if cpu is None else f"{100 * np.median(cpu) / per:.1f}"
         lines.append(f"| {name} | {len(kib)} | {mib(np.median(kib)):.1f} | {mib(min(kib)):.1f} .. "
-                     f"{mib(max(kib)):.1f} | {mib(np.median(kib)) / per:.1f} |")
+                     f"{mib(max(kib)):.1f} | {mib(np.median(kib)) / per:.1f} | {share} |")
     return lines + [""]
 
 
@@ -847,7 +890,7 @@ def main(argv=None) -> int:
     if "network-lockstep" in args.only:
         network_lockstep = bench_network_lockstep(
             env, log_root, NETWORK_LOCKSTEP_QUICK_CASES if args.quick else NETWORK_LOCKSTEP_CASES, NETWORK_RATE_HZ,
-            4.0 if args.quick else 30.0, 200 if args.quick else 1500, 1 if args.quick else LATENCY_ROUNDS)
+            4.0 if args.quick else 30.0, 200 if args.quick else 1500)
     if "network-realtime" in args.only:
         network_realtime = bench_network_realtime(
             env, log_root, "kundur_two_area" if args.quick else "ieee39", NETWORK_RATE_HZ, 5.0 if args.quick else 30.0,
