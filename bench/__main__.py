@@ -906,5 +906,14 @@ def main(argv=None) -> int:
     return 0
 
 
+def run(argv=None) -> int:
+    """``main``, with a benchmark that cannot run (a child that failed or stayed silent) as one line and exit 1."""
+    try:
+        return main(argv)
+    except (ChildError, RuntimeError) as error:
+        print(f"bench: error: {error}", file=sys.stderr)
+        return 1
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run())
