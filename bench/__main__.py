@@ -444,43 +444,55 @@ def bench_network_lockstep(env, log_root: Path, cases, rate_hz: float, sim_durat
     """
     rows = []
     for case, rounds in cases:
-        part_s, part_samples = sim_duration_s / rounds, chained_samples // rounds
         label = case or "smib"
-        print(f"bench: network lockstep {label} at {rate_hz:g}/s, {rounds} x (chained fan-out of {part_samples}, "
-              f"{part_s:g} simulated s of the loop)", file=sys.stderr, flush=True)
-        pairs, partial = [], None
-        for index in range(1, rounds + 1):
-            if case is None:
-                chained = pingpong(env, log_root / f"fanout_chained_{label}_{index}", "chained", samples=part_samples)
-                final = closed_loop(env, log_root / f"net_lockstep_{label}_{index}", "lockstep", rate_hz, part_s)
-                summary, size = {"gen1": final}, 1
-            else:
-                run = network_loop(env, log_root / f"net_lockstep_{label}_{index}", case, "lockstep", rate_hz, part_s)
-                summary, size, partial = run["summary"], run["size"], run["partial"] or partial
-                chained = pingpong(env, log_root / f"fanout_chained_{label}_{index}", "chained",
-                                   samples=part_samples, fanout=size)
-            first = next(iter(summary.values()))
-            sim_s, wall_s = float(first["sim_time_s"]), float(first["run_wall_s"])
-            if not (sim_s > 0 and wall_s > 0):
-                raise RuntimeError(f"lockstep {label}: the plant's final status shows no run ({first})")
-            round_trip_s = float(np.mean(chained["round_trips_ns"])) * 1e-9
-            pairs.append({"round_trip_s": round_trip_s, "sim_s": sim_s, "wall_s": wall_s, "summary": summary,
-                          "floor_ratio": ((1.0 / rate_hz) / round_trip_s) / (sim_s / wall_s),
-                          "peer_range": chained["peer_range"]})
-        sim_s, wall_s = sum(p["sim_s"] for p in pairs), sum(p["wall_s"] for p in pairs)
-        round_trip_s = float(np.median([p["round_trip_s"] for p in pairs]))
-        rows.append({
-            "case": label, "generators": size, "rate_hz": rate_hz, "rounds": rounds, "sim_duration_s": sim_s,
-            "run_wall_s": wall_s, "throughput": sim_s / wall_s, "floor_throughput": (1.0 / rate_hz) / round_trip_s,
-            "floor_ratio": float(np.median([p["floor_ratio"] for p in pairs])),
-            "round_ratios": [p["floor_ratio"] for p in pairs], "round_trip_mean_ms": round_trip_s * 1e3,
-            "cycle_ms": wall_s / (sim_s * rate_hz) * 1e3,
-            **{f"{name}_ms": {q: float(np.median([generator_percentiles(p["summary"], name)[q] for p in pairs]))
-                              for q in ("p50", "p99")} for name in ("latency", "turnaround")},
-            "deadline_misses": sum(int(v["deadline_misses"]) for p in pairs for v in p["summary"].values()),
-            "peer_range": pairs[0]["peer_range"], "partial": partial,
-        })
+        print(f"bench: network lockstep {label} at {rate_hz:g}/s, {rounds} x (chained fan-out of "
+              f"{chained_samples // rounds}, {sim_duration_s / rounds:g} simulated s of the loop)",
+              file=sys.stderr, flush=True)
+        try:
+            rows.append(network_lockstep_row(env, log_root, case, rounds, rate_hz, sim_duration_s, chained_samples))
+        except (ChildError, RuntimeError) as error:
+            print(f"bench: network lockstep {label}: not completed: {error}", file=sys.stderr, flush=True)
+            rows.append({"case": label, "error": str(error).splitlines()[0][:300]})
     return rows
+
+
+def network_lockstep_row(env, log_root: Path, case, rounds: int, rate_hz: float, sim_duration_s: float,
+                         chained_samples: int) -> dict:
+    """One row of section 4: ``rounds`` alternating pairs of a lockstep run and a chained fan-out."""
+    part_s, part_samples = sim_duration_s / rounds, chained_samples // rounds
+    label = case or "smib"
+    pairs, partial = [], None
+    for index in range(1, rounds + 1):
+        if case is None:
+            chained = pingpong(env, log_root / f"fanout_chained_{label}_{index}", "chained", samples=part_samples)
+            final = closed_loop(env, log_root / f"net_lockstep_{label}_{index}", "lockstep", rate_hz, part_s)
+            summary, size = {"gen1": final}, 1
+        else:
+            run = network_loop(env, log_root / f"net_lockstep_{label}_{index}", case, "lockstep", rate_hz, part_s)
+            summary, size, partial = run["summary"], run["size"], run["partial"] or partial
+            chained = pingpong(env, log_root / f"fanout_chained_{label}_{index}", "chained",
+                               samples=part_samples, fanout=size)
+        first = next(iter(summary.values()))
+        sim_s, wall_s = float(first["sim_time_s"]), float(first["run_wall_s"])
+        if not (sim_s > 0 and wall_s > 0):
+            raise RuntimeError(f"lockstep {label}: the plant's final status shows no run ({first})")
+        round_trip_s = float(np.mean(chained["round_trips_ns"])) * 1e-9
+        pairs.append({"round_trip_s": round_trip_s, "sim_s": sim_s, "wall_s": wall_s, "summary": summary,
+                      "floor_ratio": ((1.0 / rate_hz) / round_trip_s) / (sim_s / wall_s),
+                      "peer_range": chained["peer_range"]})
+    sim_s, wall_s = sum(p["sim_s"] for p in pairs), sum(p["wall_s"] for p in pairs)
+    round_trip_s = float(np.median([p["round_trip_s"] for p in pairs]))
+    return {
+        "case": label, "generators": size, "rate_hz": rate_hz, "rounds": rounds, "sim_duration_s": sim_s,
+        "run_wall_s": wall_s, "throughput": sim_s / wall_s, "floor_throughput": (1.0 / rate_hz) / round_trip_s,
+        "floor_ratio": float(np.median([p["floor_ratio"] for p in pairs])),
+        "round_ratios": [p["floor_ratio"] for p in pairs], "round_trip_mean_ms": round_trip_s * 1e3,
+        "cycle_ms": wall_s / (sim_s * rate_hz) * 1e3,
+        **{f"{name}_ms": {q: float(np.median([generator_percentiles(p["summary"], name)[q] for p in pairs]))
+                          for q in ("p50", "p99")} for name in ("latency", "turnaround")},
+        "deadline_misses": sum(int(v["deadline_misses"]) for p in pairs for v in p["summary"].values()),
+        "peer_range": pairs[0]["peer_range"], "partial": partial,
+    }
 
 
 def per_generator_cost(rows: list[dict]) -> dict:
@@ -755,6 +767,8 @@ def network_lockstep_section(rows: list[dict]) -> list[str]:
              "| N | case | simulated s / wall s | throughput (x real time) | floor (x real time) | floor / throughput "
              "(rounds) | cycle (ms) | fan-out round trip (ms) | latency p50 / p99 (ms) | turnaround p50 / p99 (ms) "
              "| misses |", "|---:|---|---:|---:|---:|---|---:|---:|---|---|---:|"]
+    failed = [row for row in rows if "error" in row]
+    rows = [row for row in rows if "error" not in row]
     for row in rows:
         rounds = ", ".join(f"{ratio:.2f}" for ratio in row["round_ratios"])
         case = f"{row['case']} (**partial**: {row['partial']})" if row["partial"] else row["case"]
@@ -764,6 +778,8 @@ def network_lockstep_section(rows: list[dict]) -> list[str]:
                      f"{row['latency_ms']['p50']:.3f} / {row['latency_ms']['p99']:.3f} | "
                      f"{row['turnaround_ms']['p50']:.3f} / {row['turnaround_ms']['p99']:.3f} | "
                      f"{row['deadline_misses']} |")
+    for row in failed:
+        lines.append(f"| - | {row['case']}: **not completed**: {row['error']} |" + " |" * 9)
     widened = [row for row in rows if row["peer_range"]]
     if widened:
         lines += ["", f"\\* More than {LOCALHOST_PEER_RANGE} processes: rmw_fastrtps (Jazzy) under "
@@ -788,6 +804,8 @@ def network_lockstep_section(rows: list[dict]) -> list[str]:
 
 def network_realtime_section(result: dict) -> list[str]:
     """Section 5: realtime per generator beside the timed fan-out, separate and composed; section 6: memory."""
+    if "error" in result:
+        return ["## 5. Network realtime (issue 14)", "", f"**Not completed**: {result['error']}", ""]
     kinds = result["kinds"]
     lines = [f"## 5. Network realtime at {result['rate_hz']:g} frames/s, {result['size']} controllers (issue 14)", "",
              f"`{result['case']}` in realtime (the PMU grid on the wall clock) for {result['duration_s']:g} s per "
@@ -892,9 +910,14 @@ def main(argv=None) -> int:
             env, log_root, NETWORK_LOCKSTEP_QUICK_CASES if args.quick else NETWORK_LOCKSTEP_CASES, NETWORK_RATE_HZ,
             4.0 if args.quick else 30.0, 200 if args.quick else 1500)
     if "network-realtime" in args.only:
-        network_realtime = bench_network_realtime(
-            env, log_root, "kundur_two_area" if args.quick else "ieee39", NETWORK_RATE_HZ, 5.0 if args.quick else 30.0,
-            1 if args.quick else LATENCY_ROUNDS, args.composed != "no" and composed_available())
+        try:
+            network_realtime = bench_network_realtime(
+                env, log_root, "kundur_two_area" if args.quick else "ieee39", NETWORK_RATE_HZ,
+                5.0 if args.quick else 30.0, 1 if args.quick else LATENCY_ROUNDS,
+                args.composed != "no" and composed_available())
+        except (ChildError, RuntimeError) as error:
+            print(f"bench: network realtime: not completed: {error}", file=sys.stderr, flush=True)
+            network_realtime = {"error": str(error).splitlines()[0][:300]}
     machine["load_average_at_end"] = os.getloadavg()
     text = report(command, machine, args.quick, latency, share, lockstep, roa_result, started_text,
                   time.monotonic() - started, network_lockstep, network_realtime)

@@ -13,7 +13,11 @@ work in between: ``echo`` publishes every message it receives straight back,
   miss is a tick that finds the previous ping unanswered (the plant's
   definition).
 * ``ping --mode chained``: each pong triggers the next ping at once, as the
-  lockstep plant's next sample waits for the command: the lockstep floor.
+  lockstep plant's next sample waits for the command: the lockstep floor. As
+  the plant's lockstep timeout, an instant unanswered after
+  ``CHAINED_TIMEOUT_S`` is given up (counted unanswered) and the next sent:
+  an echo can answer the first ping before its writer has discovered the
+  ping's reader, and that pong is lost (seen once in three fan-outs to 10).
 * ``ping --fanout N``: the fan-out to N echoes, as the network plant's to its
   N controllers: echo i runs in namespace ``/gen<i>`` (``--ros-args -r
   __ns:=/gen<i>``), and each instant sends one ping to every echo, stamped
@@ -44,6 +48,8 @@ from nni_msgs_adapter.ros.node_main import run_node
 PING_TOPIC = "bench/ping"
 PONG_TOPIC = "bench/pong"
 RESULT_PREFIX = "PINGPONG "
+#: Chained: an instant still unanswered after this long (wall time, s) is given up and the next one sent.
+CHAINED_TIMEOUT_S = 1.0
 
 
 class Echo(Node):
@@ -103,6 +109,8 @@ class Ping(Node):
             self._tick_timer = self.create_timer(self.period_s, self._on_tick)
             # Ideal instants on the timer's own grid (its period in whole ns), as the plant's.
             self._period_ns = self._tick_timer.timer_period_ns
+        else:
+            self._tick_timer = self.create_timer(CHAINED_TIMEOUT_S / 10, self._on_watchdog)
         self._send(now)
 
     def _send(self, instant_ns: int) -> None:
@@ -127,6 +135,21 @@ class Ping(Node):
             return
         self._send(self._t0_ns + (now - self._t0_ns) // self._period_ns * self._period_ns)
 
+    def _on_watchdog(self) -> None:
+        """Chained: give up the instant in flight once it is older than ``CHAINED_TIMEOUT_S``; send the next."""
+        instant = self._outstanding
+        if instant in self._pending and self._now_ns() - instant > CHAINED_TIMEOUT_S * 1e9:
+            del self._pending[instant]
+            self._send_next()
+
+    def _send_next(self) -> None:
+        """Chained: the next instant, or the end once ``samples`` instants were sent."""
+        if self.sent >= self.samples:
+            self._tick_timer.cancel()
+            self.done.set_result(True)
+        else:
+            self._send(self._now_ns())
+
     def _on_pong(self, index: int, msg) -> None:
         arrival = self._now_ns()
         stamp = contract.ns_from_time(msg.header.stamp)
@@ -140,10 +163,7 @@ class Ping(Node):
         del self._pending[stamp]
         self.round_trips_ns.append(arrival - stamp)
         if self.mode == "chained":
-            if len(self.round_trips_ns) >= self.samples:
-                self.done.set_result(True)
-            else:
-                self._send(self._now_ns())
+            self._send_next()
 
     def close(self) -> None:
         lost = self.sent - len(self.round_trips_ns)
