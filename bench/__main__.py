@@ -156,12 +156,13 @@ def pingpong(env: dict, log_dir: Path, mode: str, rate_hz: float = 100.0, durati
             procs.start("echo", peer or echo)
         procs.start("ping", [sys.executable, "-m", "bench.pingpong", "ping", "--mode", mode, "--rate", str(rate_hz),
                              "--duration", str(duration_s), "--samples", str(samples), "--fanout", str(fanout)])
-        status = procs["ping"].wait_exit(60.0 + 3.0 * fanout + duration_s + samples * 0.05)
-        if status != 0:
-            raise RuntimeError(f"ping-pong ping exited with {status}: {procs['ping'].tail(400)}")
-        echoes = [child for name, child in procs.children.items() if name != "ping"]
-        echo_rss = [rss_kib(child.pid) for child in echoes]
-        stop_together(procs)
+        try:
+            status = procs["ping"].wait_exit(60.0 + 3.0 * fanout + duration_s + samples * 0.05)
+            if status != 0:
+                raise RuntimeError(f"ping-pong ping exited with {status}: {procs['ping'].tail(400)}")
+            echo_rss = [rss_kib(child.pid) for name, child in procs.children.items() if name != "ping"]
+        finally:
+            stop_together(procs)
         for line in procs["ping"].output().splitlines():
             if line.startswith(RESULT_PREFIX):
                 return {**json.loads(line[len(RESULT_PREFIX):]), "echo_rss_kib": echo_rss,
@@ -375,7 +376,6 @@ def network_loop(env: dict, log_dir: Path, case: str, mode: str, rate_hz: float,
     resident set sizes, read at the end of the run while they are still up.
     """
     from nni_plant_sim.cases import load_network
-    from nni_plant_sim.network_plant_node import SUMMARY_PREFIX
 
     net = load_network(case)
     namespaces = [f"/gen{i + 1}" for i in range(net.size)]
@@ -397,27 +397,37 @@ def network_loop(env: dict, log_dir: Path, case: str, mode: str, rate_hz: float,
         plant = procs.start_node("plant", "nni_plant_sim.network_plant_node",
                                  {"case": case, "mode": mode, "duration_s": duration_s, "pmu_rate_hz": rate_hz,
                                   "wait_for_subscribers": 1, "wait_timeout_s": 600.0})
-        limit_s = 120.0 + 5.0 * net.size + duration_s * (1.0 if mode == "realtime" else 4.0)
-        started = time.monotonic()
-        plant.wait_for_line("started in", limit_s)
-        run_started, cpu_started = time.monotonic(), [cpu_seconds(child.pid) for child in controllers]
-        partial = None
         try:
-            status = plant.wait_exit(max(1.0, limit_s - (run_started - started)))
-        except ChildError:
-            partial, status = f"stopped after {limit_s:.0f} s of wall time", None
-        run_s = time.monotonic() - run_started
-        rss = [rss_kib(child.pid) for child in controllers]
-        cpu = [(cpu_seconds(child.pid) - before) / run_s for child, before in zip(controllers, cpu_started)]
-        if partial:
-            status = plant.stop()  # SIGINT: the plant prints its summary of the run so far
-        if status != 0:
-            raise RuntimeError(f"network plant ({case}) exited with {status}: {plant.tail(400)}")
-        stop_together(procs)
-        for line in plant.output().splitlines():
-            if line.startswith(SUMMARY_PREFIX):
-                return {"summary": json.loads(line[len(SUMMARY_PREFIX):]), "rss_kib": rss, "cpu_share": cpu,
-                        "size": net.size, "peer_range": peer_range, "partial": partial}
+            return run_network_plant(plant, controllers, case, mode, net.size, duration_s, peer_range)
+        finally:
+            stop_together(procs)
+
+
+def run_network_plant(plant, controllers, case: str, mode: str, size: int, duration_s: float,
+                      peer_range) -> dict:
+    """Wait for the plant's run (stopped as partial past its limit); its summary, the controllers' RSS and CPU."""
+    from nni_plant_sim.network_plant_node import SUMMARY_PREFIX
+
+    limit_s = 120.0 + 5.0 * size + duration_s * (1.0 if mode == "realtime" else 4.0)
+    started = time.monotonic()
+    plant.wait_for_line("started in", limit_s)
+    run_started, cpu_started = time.monotonic(), [cpu_seconds(child.pid) for child in controllers]
+    partial = None
+    try:
+        status = plant.wait_exit(max(1.0, limit_s - (run_started - started)))
+    except ChildError:
+        partial, status = f"stopped after {limit_s:.0f} s of wall time", None
+    run_s = time.monotonic() - run_started
+    rss = [rss_kib(child.pid) for child in controllers]
+    cpu = [(cpu_seconds(child.pid) - before) / run_s for child, before in zip(controllers, cpu_started)]
+    if partial:
+        status = plant.stop()  # SIGINT: the plant prints its summary of the run so far
+    if status != 0:
+        raise RuntimeError(f"network plant ({case}) exited with {status}: {plant.tail(400)}")
+    for line in plant.output().splitlines():
+        if line.startswith(SUMMARY_PREFIX):
+            return {"summary": json.loads(line[len(SUMMARY_PREFIX):]), "rss_kib": rss, "cpu_share": cpu,
+                    "size": size, "peer_range": peer_range, "partial": partial}
     raise RuntimeError(f"the network plant ({case}) printed no summary")
 
 
