@@ -21,6 +21,7 @@ PURE_MODULES = [
     "nni_plant_sim.network",
     "nni_plant_sim.network_scenarios",
     "nni_plant_sim.cases",
+    "nni_plant_sim.cases.replicated",
     "nni_battery_controller.law",
     "nni_battery_controller.simulate",
     "nni_battery_controller.roa",

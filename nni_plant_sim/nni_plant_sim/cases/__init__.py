@@ -10,6 +10,9 @@ Shipped:
   typed from Kundur (1994), Example 12.6; 60 Hz.
 - ``ieee39``: MATPOWER's case39 from pypower with ``ieee39_machines.csv``
   (Athay et al. 1979 / Pai 1989); 60 Hz.
+- ``kundur_ring_52``: synthetic, 52 generators: 13 copies of ``kundur_two_area``
+  tied in a ring (:mod:`.replicated` says how); its machine file is the
+  two-area system's, replicated; 60 Hz.
 
 Pure python: no ROS import.
 """
@@ -24,12 +27,15 @@ from pathlib import Path
 
 import numpy as np
 
+from nni_plant_sim.cases.replicated import ring_of_kundur
 from nni_plant_sim.network import Machine, Network, network_from_case
 
-#: Shipped cases: name -> (network source, machine file, nominal frequency Hz).
+#: Shipped cases: name -> (network source, machine file, nominal frequency Hz). A source is a shipped
+#: ``.m`` file, ``pypower:<case>``, or ``kundur_ring:<copies>`` (built by :func:`.replicated.ring_of_kundur`).
 CASES = {
     "kundur_two_area": ("kundur_two_area.m", "kundur_two_area_machines.csv", 60.0),
     "ieee39": ("pypower:case39", "ieee39_machines.csv", 60.0),
+    "kundur_ring_52": ("kundur_ring:13", "kundur_two_area_machines.csv", 60.0),
 }
 
 _MATRIX = re.compile(r"mpc\.(bus|gen|branch)\s*=\s*\[(.*?)\]\s*;", re.S)
@@ -93,14 +99,17 @@ def load_network(case: str, machines_path: str | None = None, f0_hz: float | Non
     """
     if case in CASES:
         source, machines_file, default_f0 = CASES[case]
+        machines = read_machines(shipped_text(machines_file) if machines_path is None
+                                 else Path(machines_path).read_text(encoding="utf-8"))
         if source.startswith("pypower:"):
             from pypower import api
 
             ppc = getattr(api, source.split(":", 1)[1])()
+        elif source.startswith("kundur_ring:"):
+            ppc, machines = ring_of_kundur(read_matpower(shipped_text("kundur_two_area.m")), machines,
+                                           int(source.split(":", 1)[1]))
         else:
             ppc = read_matpower(shipped_text(source))
-        machines = read_machines(shipped_text(machines_file) if machines_path is None
-                                 else Path(machines_path).read_text(encoding="utf-8"))
         return network_from_case(ppc, machines, default_f0 if f0_hz is None else f0_hz)
     path = Path(case)
     if not path.is_file():
