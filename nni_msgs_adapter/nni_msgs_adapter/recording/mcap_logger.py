@@ -167,17 +167,28 @@ class McapLogger(Node):
                 return
             msg_class, _, qos = contract.recorder_endpoint(name)
             self._recorded[topic] = self.create_subscription(
-                msg_class, topic, self._writer_for(channel), qos, raw=True)
+                msg_class, topic, self._writer_for(channel, topic), qos, raw=True)
 
-    def _writer_for(self, channel: int):
+    def _writer_for(self, channel: int, topic: str):
+        """The callback of ``topic``: writes the message, then every one already queued behind it.
+
+        Draining the queue in one wake-up (``take_message`` on the subscription's handle, as the
+        executor itself takes) spares SingleThreadedExecutor a wait-set rebuild per message: without
+        it the logger fell behind a 1000 frames/s lockstep run under load and lost samples (measured).
+        """
         clock = self.get_clock()
         writer = self._writer
 
         def write(cdr: bytes, info: dict) -> None:
-            if writer.failure is not None:
-                return  # reported once, at the failure; the node is stopping
+            subscription = self._recorded[topic]
             try:
-                writer.write(channel, cdr, clock.now().nanoseconds, info["source_timestamp"])
+                with subscription.handle:
+                    while writer.failure is None:  # after a failure: reported once; the node is stopping
+                        writer.write(channel, cdr, clock.now().nanoseconds, info["source_timestamp"])
+                        taken = subscription.handle.take_message(subscription.msg_type, True)
+                        if taken is None:
+                            return
+                        cdr, info = taken
             except WriteFailure:
                 pass  # on_failure has reported it
 
