@@ -72,6 +72,8 @@ def parameters() -> tuple[Spec, ...]:
 COUNTS_PREFIX = "mcap_logger counts: "
 #: Exit status of a logger that could not write its file to the end.
 EXIT_WRITE_FAILURE = 1
+#: Most messages one callback writes from its topic's queue before it hands the executor back.
+DRAIN_LIMIT = 100
 
 
 _STAMP = struct.Struct("<iI")  # builtin_interfaces/Time in little-endian CDR
@@ -170,27 +172,33 @@ class McapLogger(Node):
                 msg_class, topic, self._writer_for(channel, topic), qos, raw=True)
 
     def _writer_for(self, channel: int, topic: str):
-        """The callback of ``topic``: writes the message, then every one already queued behind it.
+        """The callback of ``topic``: writes the message and those already queued behind it (``DRAIN_LIMIT`` in all).
 
         Draining the queue in one wake-up (``take_message`` on the subscription's handle, as the
         executor itself takes) spares SingleThreadedExecutor a wait-set rebuild per message: without
         it the logger fell behind a 1000 frames/s lockstep run under load and lost samples (measured).
+        The limit hands the executor back now and then, so that the graph scan and the other
+        topics are served while a topic streams.
         """
         clock = self.get_clock()
         writer = self._writer
 
         def write(cdr: bytes, info: dict) -> None:
             subscription = self._recorded[topic]
-            try:
-                with subscription.handle:
-                    while writer.failure is None:  # after a failure: reported once; the node is stopping
-                        writer.write(channel, cdr, clock.now().nanoseconds, info["source_timestamp"])
-                        taken = subscription.handle.take_message(subscription.msg_type, True)
-                        if taken is None:
-                            return
-                        cdr, info = taken
-            except WriteFailure:
-                pass  # on_failure has reported it
+            taken = [(clock.now().nanoseconds, cdr, info)]
+            with subscription.handle:
+                while len(taken) < DRAIN_LIMIT:
+                    message = subscription.handle.take_message(subscription.msg_type, True)
+                    if message is None:
+                        break
+                    taken.append((clock.now().nanoseconds, *message))
+            for received_ns, data, message_info in taken:
+                if writer.failure is not None:
+                    return  # reported once, at the failure; the node is stopping
+                try:
+                    writer.write(channel, data, received_ns, message_info["source_timestamp"])
+                except WriteFailure:
+                    return  # on_failure has reported it
 
         return write
 
