@@ -183,5 +183,8 @@ def test_the_bridge_refuses_namespaces_it_cannot_show_with_one_line(tmp_path, pa
     with node_processes(tmp_path, fresh_domain_id()) as start:
         bridge = start("bridge", BRIDGE, {"sink": "save", "path": str(tmp_path / "x.rrd"), **params})
         assert bridge.wait(timeout=60.0) == 2
-        assert bridge.output().strip() == f"rerun_bridge: error: {expected}"
+        output = bridge.output()
+    # The node's own output is the one line (Fast DDS may add its own shared-memory notices on a shared machine).
+    assert [line for line in output.splitlines() if "rerun_bridge" in line] == [f"rerun_bridge: error: {expected}"]
+    assert "Traceback" not in output
     assert not (tmp_path / "x.rrd").exists()

@@ -36,7 +36,11 @@ Omega: the same samples, values and labels the live bridge
 --serve-web``, default ``rerun+http://127.0.0.1:9876/proxy``), ``--spawn``
 starts a native viewer (needs a display). f0 comes from the recording's run
 parameters (the ``nni_run`` metadata); ``--f0-hz`` labels a recording made
-before they were recorded, and is refused for one that has them.
+before they were recorded, and is refused for one that has them. A network run
+(its run parameters name its ``case``, :mod:`network_runs`) is shown in the
+network layout instead: per generator ``gen<i>``, its angle relative to the
+centre of inertia, frequency, battery power with +-b and saturation, one colour
+each, as the bridge shows it with ``namespaces``; f0 is the case's.
 
 Description and figure (no ROS graph)::
 
@@ -45,10 +49,13 @@ Description and figure (no ROS graph)::
 
 ``--info`` prints the file, its size, ROS distro, duration, start and end, message count,
 each topic's type, count, serialization format and QoS, whether the file is complete, the
-run's parameters key by key and, per generator, the verdicts of
-:func:`nni_battery_controller.simulate.assess` key by key. Verdicts and ``--plot`` need the
+run's parameters key by key and, per generator, one block (its samples, b, the largest
+battery power applied, the trust counters of the plant's last ``gen<i>/plant`` status) followed by
+the verdicts of :func:`nni_battery_controller.simulate.assess` key by key; for a network run (the
+parameters name its ``case``) the verdicts of :func:`nni_battery_controller.network_sim.assess_network`,
+the system's first, then each generator's. Verdicts and ``--plot`` need the
 run's parameters (the plant's equilibrium and the controller's limit): a recording without
-them is refused for those with one line.
+them is refused for those with one line. ``--plot`` draws single-machine runs only.
 
 A recording cut short (a killed logger, a full disk) is read up to its last flush and
 reported as incomplete (how many messages, up to which time): ``--info`` says so, every
@@ -270,9 +277,10 @@ def viewable_runs(path, runs: dict[str, GeneratorRun]) -> list[GeneratorRun]:
 def convert(args) -> int:
     """``--rrd`` / ``--connect`` / ``--spawn``: the recording in Rerun, with the blueprint."""
     recording = load(args)
-    runs = viewable_runs(args.recording, readable_runs(recording))
+    every_run = readable_runs(recording)
+    runs = viewable_runs(args.recording, every_run)
     parameters = run_metadata(recording)
-    network = recorded_network(recording, {run.namespace: run for run in runs}, parameters)
+    network = recorded_network(recording, every_run, parameters)
     if args.spawn:
         check_display()
     elif args.connect is not None:

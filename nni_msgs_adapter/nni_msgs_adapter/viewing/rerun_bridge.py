@@ -159,7 +159,8 @@ class RerunBridge(Node):
         self._namespaces = tuple(namespaces) or ("",)
         self._f0_hz, self._case = values["f0_hz"], values["case"]
         if self._net is not None:
-            if self._f0_hz not in (parameters()[3].default, self._net.f0_hz):
+            default_f0 = next(spec.default for spec in parameters() if spec.name == "f0_hz")
+            if self._f0_hz not in (default_f0, self._net.f0_hz):
                 raise ValueError(f"f0_hz {self._f0_hz:g}: case {values['case']} has f0 = {self._net.f0_hz:g} Hz")
             self._f0_hz = float(self._net.f0_hz)
         sink = (values["sink"], {"save": values["path"], "connect": values["url"]}.get(values["sink"]))
