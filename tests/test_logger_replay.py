@@ -584,6 +584,46 @@ def test_replay_rejects_bad_usage(tmp_path, kind):
     assert time.monotonic() - started < 15, "refused at once, not after a replay or a connection retry loop"
 
 
+def stamp_of(msg) -> int:
+    """A message's header stamp, ns."""
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def test_publish_time_is_the_senders_dds_source_timestamp(tmp_path):
+    """As rosbag2 records it: publish_time = the DDS source timestamp (the writer's clock), log_time = receive time.
+
+    The probe publishes PMU messages whose header stamps are far in the past (1970 + k s) and reads
+    each sample's source timestamp from its own subscription's message info (DDS gives every reader
+    of a sample the same one). A logger that wrote its receive time, or the header stamp, fails the
+    equality; the receive time comes after the send.
+    """
+    domain, path = fresh_domain_id(), tmp_path / "sent.mcap"
+    sent: dict[int, int] = {}  # header stamp -> source timestamp seen by the probe
+    with node_processes(tmp_path, domain) as start:
+        logger = start("logger", LOGGER, {"output_path": str(path), "discovery_period_s": 0.1})
+        probe = Probe(domain, ())
+        try:
+            msg_class, name, qos = contract.recorder_endpoint(contract.TOPIC_PMU)
+            probe.node.create_subscription(
+                msg_class, name, lambda msg, info: sent.__setitem__(stamp_of(msg),
+                                                                    info["source_timestamp"]), qos)
+            assert probe.wait_matched(contract.TOPIC_PMU, 2, 30.0), "the probe's own reader and the logger's"
+            for k in range(1, 21):
+                probe.publish(contract.TOPIC_PMU, contract.pmu_message(k * 1_000_000_000, 0.1 * k, 0.0, 0.5))
+                time.sleep(0.02)
+            time.sleep(0.5)
+        finally:
+            probe.close()
+        assert logger.interrupt(timeout=15) == 0, logger.output()
+    recorded = [record for record in read_messages(path) if record.topic == "/" + contract.TOPIC_PMU]
+    assert len(recorded) == len(sent) == 20
+    for record in recorded:
+        stamp = stamp_of(deserialize(record.type_name, record.cdr_bytes))
+        assert record.publish_time_ns == sent[stamp], "the sender's DDS source timestamp"
+        assert record.publish_time_ns != stamp and record.publish_time_ns < record.log_time_ns
+        assert record.log_time_ns - record.publish_time_ns < 5e9
+
+
 def test_logger_rejects_a_missing_output_folder(tmp_path):
     result = subprocess.run(
         [sys.executable, "-m", LOGGER, "--ros-args", "-p", f"output_path:={tmp_path / 'absent' / 'run.mcap'}"],

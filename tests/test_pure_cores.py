@@ -35,6 +35,7 @@ PURE_MODULES = [
     "nni_msgs_adapter.recording.mcap_qos",
     "nni_msgs_adapter.recording.mcap_reader",
     "nni_msgs_adapter.recording.mcap_writer",
+    "nni_msgs_adapter.recording.network_runs",
     "nni_msgs_adapter.viewing.rerun_view",
     "nni_msgs_adapter.ros.cli_support",
     "nni_msgs_adapter.ros.defaults",

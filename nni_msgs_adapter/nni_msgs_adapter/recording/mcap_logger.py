@@ -7,12 +7,13 @@ one matcher (:func:`recording.split_topic`) knows: ``pmu``, ``battery/command``,
 any namespace, plus the absolute ``/clock`` and ``/diagnostics``; it subscribes to each in
 raw (serialized) form, so nothing is deserialised on the way to disk, with the contract's QoS
 and a history of ``contract.RECORDER_DEPTH`` (a logger that falls behind catches up instead of
-losing samples). Each message is written with log_time = receive time and publish_time = its
-header stamp (read from the first eight CDR bytes: every contract type starts with a
-builtin_interfaces/Time). rosbag2 records the DDS source timestamp there, from the message
-info; rclpy's EventsExecutor, which every node of the project spins, fails on a callback that
-asks for the message info (``SystemError: null argument to internal routine``, rclpy 7.1 of
-Jazzy, measured), so the stamp stands in for it. The channel's
+losing samples). Each message is written with log_time = receive time (the logger's clock when
+the callback runs) and publish_time = the DDS source timestamp, the sender's clock when it
+wrote the sample, from the message info, as rosbag2 records them. rclpy's EventsExecutor, which
+the other nodes spin, fails on a callback that asks for the message info (``SystemError: null
+argument to internal routine``, rclpy 7.1 of Jazzy, measured), so the logger asks
+:func:`node_main.run_node` for SingleThreadedExecutor (:attr:`McapLogger.needs_message_info`).
+The channel's
 ``offered_qos_profiles`` are the QoS of the publishers seen on the graph, so ``ros2 bag play``
 offers the same QoS.
 
@@ -71,13 +72,15 @@ def parameters() -> tuple[Spec, ...]:
 COUNTS_PREFIX = "mcap_logger counts: "
 #: Exit status of a logger that could not write its file to the end.
 EXIT_WRITE_FAILURE = 1
+#: Most messages one callback writes from its topic's queue before it hands the executor back.
+DRAIN_LIMIT = 100
 
 
 _STAMP = struct.Struct("<iI")  # builtin_interfaces/Time in little-endian CDR
 
 
 def header_stamp_ns(cdr: bytes) -> int:
-    """The leading builtin_interfaces/Time of a contract message, ns; 0 if unreadable."""
+    """The leading builtin_interfaces/Time of a contract message, ns; 0 if unreadable (every contract type starts with one)."""
     if len(cdr) < 12 or cdr[1] != 0x01:  # encapsulation: CDR little-endian
         return 0
     sec, nanosec = _STAMP.unpack_from(cdr, 4)
@@ -105,6 +108,9 @@ def run_metadata_record(text: str) -> dict[str, str] | None:
 
 class McapLogger(Node):
     """Subscribes to the contract's topics as they appear and writes them to one MCAP file."""
+
+    #: Its callbacks take the message info (publish time): node_main spins it on SingleThreadedExecutor.
+    needs_message_info = True
 
     def __init__(self, **kwargs):
         super().__init__("mcap_logger", **kwargs)
@@ -163,19 +169,36 @@ class McapLogger(Node):
                 return
             msg_class, _, qos = contract.recorder_endpoint(name)
             self._recorded[topic] = self.create_subscription(
-                msg_class, topic, self._writer_for(channel), qos, raw=True)
+                msg_class, topic, self._writer_for(channel, topic), qos, raw=True)
 
-    def _writer_for(self, channel: int):
+    def _writer_for(self, channel: int, topic: str):
+        """The callback of ``topic``: writes the message and those already queued behind it (``DRAIN_LIMIT`` in all).
+
+        Draining the queue in one wake-up (``take_message`` on the subscription's handle, as the
+        executor itself takes) spares SingleThreadedExecutor a wait-set rebuild per message: without
+        it the logger fell behind a 1000 frames/s lockstep run under load and lost samples (measured).
+        The limit hands the executor back now and then, so that the graph scan and the other
+        topics are served while a topic streams.
+        """
         clock = self.get_clock()
         writer = self._writer
 
-        def write(cdr: bytes) -> None:
-            if writer.failure is not None:
-                return  # reported once, at the failure; the node is stopping
-            try:
-                writer.write(channel, cdr, clock.now().nanoseconds, header_stamp_ns(cdr))
-            except WriteFailure:
-                pass  # on_failure has reported it
+        def write(cdr: bytes, info: dict) -> None:
+            subscription = self._recorded[topic]
+            taken = [(clock.now().nanoseconds, cdr, info)]
+            with subscription.handle:
+                while len(taken) < DRAIN_LIMIT:
+                    message = subscription.handle.take_message(subscription.msg_type, True)
+                    if message is None:
+                        break
+                    taken.append((clock.now().nanoseconds, *message))
+            for received_ns, data, message_info in taken:
+                if writer.failure is not None:
+                    return  # reported once, at the failure; the node is stopping
+                try:
+                    writer.write(channel, data, received_ns, message_info["source_timestamp"])
+                except WriteFailure:
+                    return  # on_failure has reported it
 
         return write
 

@@ -36,7 +36,11 @@ Omega: the same samples, values and labels the live bridge
 --serve-web``, default ``rerun+http://127.0.0.1:9876/proxy``), ``--spawn``
 starts a native viewer (needs a display). f0 comes from the recording's run
 parameters (the ``nni_run`` metadata); ``--f0-hz`` labels a recording made
-before they were recorded, and is refused for one that has them.
+before they were recorded, and is refused for one that has them. A network run
+(its run parameters name its ``case``, :mod:`network_runs`) is shown in the
+network layout instead: per generator ``gen<i>``, its angle relative to the
+centre of inertia, frequency, battery power with +-b and saturation, one colour
+each, as the bridge shows it with ``namespaces``; f0 is the case's.
 
 Description and figure (no ROS graph)::
 
@@ -45,10 +49,13 @@ Description and figure (no ROS graph)::
 
 ``--info`` prints the file, its size, ROS distro, duration, start and end, message count,
 each topic's type, count, serialization format and QoS, whether the file is complete, the
-run's parameters key by key and, per generator, the verdicts of
-:func:`nni_battery_controller.simulate.assess` key by key. Verdicts and ``--plot`` need the
+run's parameters key by key and, per generator, one block (its samples, b, the largest
+battery power applied, the trust counters of the plant's last ``gen<i>/plant`` status) followed by
+the verdicts of :func:`nni_battery_controller.simulate.assess` key by key; for a network run (the
+parameters name its ``case``) the verdicts of :func:`nni_battery_controller.network_sim.assess_network`,
+the system's first, then each generator's. Verdicts and ``--plot`` need the
 run's parameters (the plant's equilibrium and the controller's limit): a recording without
-them is refused for those with one line.
+them is refused for those with one line. ``--plot`` draws single-machine runs only.
 
 A recording cut short (a killed logger, a full disk) is read up to its last flush and
 reported as incomplete (how many messages, up to which time): ``--info`` says so, every
@@ -79,6 +86,7 @@ from nni_msgs_adapter.ros.cli_support import (
 from nni_msgs_adapter.recording.mcap_io import (
     OfferedQos, RecordedMessage, Recording, RecordingError, parse_qos_profiles_yaml, read_recording,
 )
+from nni_msgs_adapter.recording.network_runs import CASE_KEY, namespace_order, network_run, recorded_case
 from nni_msgs_adapter.recording.runs import (
     GeneratorRun, check_has_plant_state, check_message_type, generator_runs, run_metadata, sampled_trajectory,
     split_topic,
@@ -237,6 +245,27 @@ def log_recording(stream, runs, f0_hz: float) -> None:
                        f0_hz, run.omega_boundary)
 
 
+def log_network(stream, network) -> None:
+    """Log a network run on a Rerun stream, generator by generator (label ``gen<i>``), in the network layout.
+
+    Each generator's samples are the instants its controller answered (as for a SMIB run),
+    its angle relative to the centre of inertia of every generator's angle at that instant.
+    """
+    from nni_msgs_adapter.viewing.palette import generator_colour_rgb
+    from nni_msgs_adapter.viewing.rerun_view import NETWORK_VIEW, log_trajectory
+
+    angles = network.coi_angle_rad()
+    for i, namespace in enumerate(network.namespaces):
+        answered = network.answered[:, i]
+        if not answered.any():
+            warn(f"{namespace}: its controller answered no sample: not shown")
+            continue
+        log_trajectory(stream, namespace.lstrip("/"), network.t_s[answered], angles[answered, i],
+                       network.speed_rad_s[answered, i], network.commanded_power_pu[answered, i],
+                       network.saturated[answered, i], None, float(network.limits_pu[i]), float(network.net.f0_hz),
+                       color=generator_colour_rgb(i), kind=NETWORK_VIEW)
+
+
 def viewable_runs(path, runs: dict[str, GeneratorRun]) -> list[GeneratorRun]:
     """The runs with answered samples; RecordingError if there is none (a plant without controller)."""
     viewable = [run for run in runs.values() if run.answered.any()]
@@ -249,21 +278,36 @@ def viewable_runs(path, runs: dict[str, GeneratorRun]) -> list[GeneratorRun]:
 def convert(args) -> int:
     """``--rrd`` / ``--connect`` / ``--spawn``: the recording in Rerun, with the blueprint."""
     recording = load(args)
-    runs = viewable_runs(args.recording, readable_runs(recording))
+    every_run = readable_runs(recording)
+    runs = viewable_runs(args.recording, every_run)
+    parameters = run_metadata(recording)
+    network = recorded_network(recording, every_run, parameters)
     if args.spawn:
         check_display()
     elif args.connect is not None:
         check_listening(args.connect)
-    f0_hz = view_f0_hz(args, run_metadata(recording))
-    from nni_msgs_adapter.viewing.rerun_view import APP_ID, blueprint, open_recording, recording_stream
+    from nni_msgs_adapter.viewing.rerun_view import APP_ID, NETWORK_VIEW, blueprint, open_recording, recording_stream
 
-    layout = blueprint(phase_bounds=phase_bounds(runs))
+    if network is None:
+        f0_hz = view_f0_hz(args, parameters)
+        layout = blueprint(phase_bounds=phase_bounds(runs))
+
+        def log(stream) -> None:
+            log_recording(stream, runs, f0_hz)
+    else:
+        if args.f0_hz is not None:
+            raise CliError(f"--f0-hz: {args.recording} is a run of case {parameters[CASE_KEY]} "
+                           f"(f0 = {network.net.f0_hz:g} Hz); the option only labels recordings without run parameters")
+        layout = blueprint(kind=NETWORK_VIEW)
+
+        def log(stream) -> None:
+            log_network(stream, network)
     if args.rrd is not None:
         # In memory first, so that the .rrd appears whole or not at all (atomic rename).
         stream = recording_stream()
         memory = stream.memory_recording()
         stream.send_blueprint(layout)
-        log_recording(stream, runs, f0_hz)
+        log(stream)
         stream.flush()
         with atomic_output(args.rrd, "wb") as handle:
             handle.write(memory.drain_as_bytes())
@@ -277,7 +321,7 @@ def convert(args) -> int:
             stream.send_blueprint(layout)
         else:
             stream, _ = open_recording(APP_ID, ("spawn", None), layout=layout)
-        log_recording(stream, runs, f0_hz)
+        log(stream)
         stream.flush(timeout_sec=VIEWER_FLUSH_TIMEOUT_S)
     except RuntimeError as error:
         raise CliError(f"Rerun viewer: {str(error).splitlines()[0]}") from None
@@ -422,14 +466,67 @@ def info_lines(recording: Recording, runs: dict[str, GeneratorRun], parameters: 
     lines.append(f"Complete:          {'yes' if recording.complete else 'no: ' + recording.incompleteness()}")
     if parameters is None:
         lines.append("Run parameters:    not recorded (no nni_run metadata): no verdicts")
-        return lines
-    lines.append("Run parameters:")
-    lines += [f"  {key}: {json_text(value)}" for key, value in parameters.items()]
-    scenario, _ = recorded_scenario(parameters, recording.path)
-    for namespace, traj in trajectories(recording, runs, parameters).items():
-        lines.append(f"Verdicts{' of ' + namespace if namespace else ''}:")
-        lines += [f"  {key}: {json_text(value)}" for key, value in assess(traj, scenario=scenario).to_json().items()]
+        verdicts = {}
+    else:
+        lines.append("Run parameters:")
+        lines += [f"  {key}: {json_text(value)}" for key, value in parameters.items()]
+        network = recorded_network(recording, runs, parameters)
+        if network is None:
+            scenario, _ = recorded_scenario(parameters, recording.path)
+            verdicts = {namespace: assess(traj, scenario=scenario).to_json()
+                        for namespace, traj in trajectories(recording, runs, parameters).items()}
+        else:
+            verdicts = network_verdicts(network)
+            lines.append(f"Verdicts of the network ({parameters[CASE_KEY]}, {network.stamp_ns.size} instants "
+                         "every generator reported):")
+            lines += [f"  {key}: {json_text(value)}" for key, value in verdicts.pop("").items()]
+    for namespace, run in sorted(runs.items(), key=lambda item: namespace_order(item[0])):
+        lines += generator_lines(namespace, run)
+        if namespace in verdicts:
+            lines.append(f"Verdicts{' of ' + namespace if namespace else ''}:")
+            lines += [f"  {key}: {json_text(value)}" for key, value in verdicts[namespace].items()]
     return lines
+
+
+#: Diagnostics keys of the plant's status that count what it did not trust or could not do, in this order.
+TRUST_COUNTERS = ("foreign_commands", "unsolicited_commands", "expired_commands", "invalid_commands",
+                  "clipped_commands", "writer_alarms", "stand_down_commands", "re_pairings", "deadline_misses",
+                  "command_timeouts")
+
+
+def generator_lines(namespace: str, run: GeneratorRun) -> list[str]:
+    """One generator's block of ``--info``: its samples, b, the largest battery power, the plant's trust counters."""
+    answered = int(run.answered.sum())
+    machine = run.diagnostics.get("machine")
+    b = run.battery_limit_pu
+    lines = [f"Generator{' ' + namespace if namespace else ''}{f' (machine {machine})' if machine else ''}:",
+             f"  samples: {run.stamp_ns.size} plant states, {answered} answered by the controller",
+             f"  battery limit b: {'not reported' if math.isnan(b) else f'{b:g} pu'}",
+             f"  max|P_ST|: {float(np.max(np.abs(run.battery_power_pu))):.6g} pu (applied, recorded plant states)"]
+    counters = [f"{key} {run.diagnostics[key]}" for key in TRUST_COUNTERS if key in run.diagnostics]
+    lines.append(f"  trust (plant diagnostics, last status): {', '.join(counters)}" if counters
+                 else "  trust: no plant diagnostics recorded for this generator")
+    return lines
+
+
+def recorded_network(recording: Recording, runs: dict[str, GeneratorRun], parameters: dict | None):
+    """The recording as a :class:`network_runs.NetworkRun` if its parameters name a case; None otherwise."""
+    from nni_plant_sim.cases import load_network
+
+    try:
+        case = recorded_case(parameters)
+        return None if case is None else network_run(load_network(case), runs)
+    except ValueError as error:
+        raise CliError(f"{recording.path}: {error}") from None
+
+
+def network_verdicts(network) -> dict:
+    """``{"": the system's verdicts, namespace: that generator's}`` of :func:`network_sim.assess_network`."""
+    from nni_battery_controller.network_sim import assess_network
+
+    outcome = assess_network(network.trajectory())[0].to_json()
+    generators = outcome.pop("generators")
+    return {"": outcome, **dict(zip(network.namespaces, generators))}
 
 
 def json_text(value) -> str:
@@ -455,6 +552,9 @@ def plot(args) -> int:
     recording = load(args)
     runs = readable_runs(recording)
     parameters = require_parameters(recording, "--plot")
+    if recorded_network(recording, runs, parameters) is not None:
+        raise CliError(f"--plot draws single-machine runs; {args.recording} is a run of case {parameters[CASE_KEY]}: "
+                       "view it with --rrd OUT.rrd (or --info for its verdicts)")
     trajs = list(trajectories(recording, runs, parameters).values())
     scenario, scenario_values = recorded_scenario(parameters, recording.path)
     outcomes = [assess(traj, scenario=scenario).to_json() for traj in trajs]

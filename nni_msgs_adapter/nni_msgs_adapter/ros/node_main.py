@@ -127,7 +127,7 @@ def run_node(factory, args=None, prog: str = "node") -> int:
     stop = []
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda number, frame: stop.append(number))
-    executor = make_executor()
+    executor = make_executor(getattr(node, "needs_message_info", False))
     executor.add_node(node)
     done = getattr(node, "done", None)
     try:
@@ -254,8 +254,12 @@ def _default_text(value) -> str:
     return repr(value) if value == "" else str(value)
 
 
-def make_executor():
+def make_executor(needs_message_info: bool = False):
     """The executor every node of the project spins: rclpy's EventsExecutor where available.
+
+    A node whose subscription callbacks take the message info (``needs_message_info``, the
+    MCAP logger) gets SingleThreadedExecutor: the EventsExecutor of rclpy 7.1 raises
+    ``SystemError: null argument to internal routine`` on such a callback (measured).
 
     Measured at 100 frames/s (realtime loop, alternating runs on one machine):
     the loop's latency p50 fell by about a quarter against SingleThreadedExecutor
@@ -264,6 +268,8 @@ def make_executor():
     subscription in Python on each wake-up. It is in ``rclpy.experimental`` in
     Jazzy (7.1.x); an rclpy without it gets SingleThreadedExecutor.
     """
+    if needs_message_info:
+        return SingleThreadedExecutor()
     try:
         from rclpy.experimental import EventsExecutor
     except ImportError:

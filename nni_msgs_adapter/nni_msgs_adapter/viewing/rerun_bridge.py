@@ -21,6 +21,17 @@ Progress: whenever a run's count of logged samples changes, one line
 "last_t_s": ...}`` on stdout (``PROGRESS_PREFIX``), so that nni-demo can check
 that the stream holds every sample of run i before it moves on.
 
+A network (parameter ``namespaces``, e.g. ``[/gen1, /gen2, /gen3, /gen4]``, with
+``case``, the case those generators are, 1-based in case order as the network
+plant names them): the same topics in every namespace; a generator's sample is
+drawn once every generator's ``plant/state`` of its stamp and its own
+``controller/state`` are in, its angle relative to the centre of inertia
+(weights the machines' M from the case), labelled ``gen<i>`` (``gen<i> #2`` in a
+second run), in the network layout (:data:`rerun_view.NETWORK_VIEW`); f0 is the
+case's. The gate subscribes to every generator's ``pmu``. The progress line then
+also holds ``"generators": {namespace: samples}``. Empty ``namespaces`` (the
+default): the SMIB topics of the bridge's own namespace, as above.
+
 ``sink`` is ``save`` (to ``path``), ``serve`` (gRPC + web viewer hosted by
 this process, on every network interface: the SDK has no bind address; the URL
 is logged), ``connect`` (to a viewer or ``rerun --serve-web`` at ``url``; how
@@ -36,14 +47,16 @@ import math
 import sys
 
 import numpy as np
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.defaults import plant_defaults
 from nni_msgs_adapter.ros.node_main import run_node
 from nni_msgs_adapter.ros.ros_params import Spec, check_choices, current_values, declare
-from nni_msgs_adapter.viewing.palette import colour_rgb
-from nni_msgs_adapter.viewing.rerun_view import APP_ID, LiveLogger, open_recording
+from nni_msgs_adapter.viewing.palette import colour_rgb, generator_colour_rgb
+from nni_msgs_adapter.viewing.rerun_view import APP_ID, NETWORK_VIEW, LiveLogger, blueprint, open_recording
 
 @functools.cache
 def parameters() -> tuple[Spec, ...]:
@@ -53,8 +66,34 @@ def parameters() -> tuple[Spec, ...]:
         Spec("path", "live.rrd", "Output .rrd file for sink=save.", read_only=True),
         Spec("url", "rerun+http://127.0.0.1:9876/proxy", "Viewer or server to stream to for sink=connect.",
              read_only=True),
-        Spec("f0_hz", plant_defaults()["f0_hz"], "Nominal frequency, Hz (frequency deviation = speed / 2 pi).", 1.0, 1e3, read_only=True),
+        Spec("f0_hz", plant_defaults()["f0_hz"], "Nominal frequency, Hz (frequency deviation = speed / 2 pi); "
+             "with namespaces the case's.", 1.0, 1e3, read_only=True),
+        Spec("case", "", "With namespaces: the network case of the generators (its machines' inertias weigh the "
+             "centre of inertia), e.g. kundur_two_area.", read_only=True),
     )
+
+
+#: The string-array parameter of a network's generator namespaces (declared apart: an empty default has no type).
+NAMESPACES_PARAMETER = "namespaces"
+NAMESPACES_DESCRIPTION = ("Generator namespaces of a network, case order (e.g. [/gen1, /gen2]); empty: the SMIB topics "
+                          "of the bridge's own namespace. Needs case.")
+
+
+def network_of(namespaces: list[str], case: str):
+    """The case's Network for a bridge watching ``namespaces``; None for the SMIB (ValueError if they disagree)."""
+    if not namespaces:
+        if case:
+            raise ValueError(f"case {case!r} needs namespaces (the generators to show)")
+        return None
+    if not case:
+        raise ValueError("namespaces needs case: the machines' inertias weigh the centre of inertia")
+    from nni_plant_sim.cases import load_network
+
+    net = load_network(case)
+    expected = [f"/gen{i + 1}" for i in range(net.size)]
+    if list(namespaces) != expected:
+        raise ValueError(f"namespaces of case {case} are {expected} (the network plant's), got {list(namespaces)}")
+    return net
 
 
 #: Logged once the subscriptions exist; nni-demo waits for it before the first run.
@@ -77,21 +116,32 @@ def run_label(battery_limit_pu: float) -> str:
 
 
 class _Run:
-    """One run as the bridge sees it: its start stamp, its logger and what was logged."""
+    """One run as the bridge sees it: its start stamp, its loggers (one per generator) and what was logged."""
 
     def __init__(self, index: int):
         self.index = index
         self.t0_ns: int | None = None   # stamp of the run's first plant/state
-        self.logger: LiveLogger | None = None
+        self.loggers: dict[int, LiveLogger] = {}  # generator index -> its logger
         self.label = ""
         self.samples = 0
+        self.generator_samples: dict[str, int] = {}
         self.first_t_s = self.last_t_s = math.nan
         self.reported = 0
         self.plant_gone = False
 
     def progress(self) -> str:
-        return PROGRESS_PREFIX + json.dumps({"run": self.index, "label": self.label, "samples": self.samples,
-                                             "first_t_s": self.first_t_s, "last_t_s": self.last_t_s})
+        report = {"run": self.index, "label": self.label, "samples": self.samples,
+                  "first_t_s": self.first_t_s, "last_t_s": self.last_t_s}
+        if self.generator_samples:
+            report["generators"] = self.generator_samples
+        return PROGRESS_PREFIX + json.dumps(report)
+
+    def logged(self, t_s: float, namespace: str | None) -> None:
+        self.samples += 1
+        if namespace is not None:
+            self.generator_samples[namespace] = self.generator_samples.get(namespace, 0) + 1
+        self.first_t_s = t_s if self.samples == 1 else self.first_t_s
+        self.last_t_s = t_s
 
 
 class RerunBridge(Node):
@@ -100,37 +150,54 @@ class RerunBridge(Node):
     def __init__(self, **kwargs):
         super().__init__("rerun_bridge", **kwargs)
         declare(self, parameters())
+        self.declare_parameter(NAMESPACES_PARAMETER, Parameter.Type.STRING_ARRAY,
+                               ParameterDescriptor(description=NAMESPACES_DESCRIPTION, read_only=True))
         values = current_values(self, parameters())
         check_choices(values, parameters())
+        namespaces = self.get_parameter_or(NAMESPACES_PARAMETER).value or []
+        self._net = network_of(namespaces, values["case"])
+        self._namespaces = tuple(namespaces) or ("",)
+        self._f0_hz, self._case = values["f0_hz"], values["case"]
+        if self._net is not None:
+            default_f0 = next(spec.default for spec in parameters() if spec.name == "f0_hz")
+            if self._f0_hz not in (default_f0, self._net.f0_hz):
+                raise ValueError(f"f0_hz {self._f0_hz:g}: case {values['case']} has f0 = {self._net.f0_hz:g} Hz")
+            self._f0_hz = float(self._net.f0_hz)
         sink = (values["sink"], {"save": values["path"], "connect": values["url"]}.get(values["sink"]))
-        self._recording, url = open_recording(APP_ID, sink)
+        layout = blueprint(kind=NETWORK_VIEW) if self._net is not None else None
+        self._recording, url = open_recording(APP_ID, sink, layout=layout)
         if url:
             self.get_logger().info(f"{URL_TEXT} {url}")
-        self._f0_hz = values["f0_hz"]
         self._boundary = None
         self._run: _Run | None = None
         self._runs = 0
         self._labels: dict[str, int] = {}  # label -> runs drawn with it
-        self._gate = None                   # pmu subscription while a run may start: what the plant counts
-        # stamp -> the half of the sample that arrived first ("plant": speed, "controller": signals)
+        self._gates = []                    # pmu subscriptions while a run may start: what the plant counts
+        # stamp -> the halves that arrived: "plant" {generator: (angle, speed)}, "controller" {generator: signals},
+        # and "logged", the generators drawn at that stamp
         self._pending: dict[int, dict] = {}
-        subscriptions = {}
-        for topic, callback in ((contract.TOPIC_PLANT_STATE, self._on_plant),
-                                (contract.TOPIC_CONTROLLER_STATE, self._on_controller),
-                                (contract.TOPIC_INVARIANT_SET, self._on_invariant_set)):
-            msg_type, name, qos = contract.recorder_endpoint(topic)
-            subscriptions[topic] = self.create_subscription(msg_type, name, callback, qos)
-        self._plant_sub = subscriptions[contract.TOPIC_PLANT_STATE]
-        self._controller_sub = subscriptions[contract.TOPIC_CONTROLLER_STATE]
+        self._plant_subs, self._controller_subs = [], []
+        for index, namespace in enumerate(self._namespaces):
+            self._plant_subs.append(self._subscribe(namespace, contract.TOPIC_PLANT_STATE,
+                                                    lambda msg, i=index: self._on_plant(i, msg)))
+            self._controller_subs.append(self._subscribe(namespace, contract.TOPIC_CONTROLLER_STATE,
+                                                         lambda msg, i=index: self._on_controller(i, msg)))
+        if self._net is None:
+            self._subscribe("", contract.TOPIC_INVARIANT_SET, self._on_invariant_set)
         self.create_timer(WATCH_PERIOD_S, self._watch)
         self.get_logger().info(f"{READY_TEXT} ({values['sink']})")
 
+    def _subscribe(self, namespace: str, topic: str, callback):
+        msg_type, name, qos = contract.recorder_endpoint(topic)
+        return self.create_subscription(msg_type, f"{namespace}/{name}" if namespace else name, callback, qos)
+
     def _watch(self) -> None:
-        """Open the gate when a plant and a controller are heard; close it when the plant is gone."""
-        plants = self._plant_sub.get_publisher_count()
-        if self._gate is None and plants and self._controller_sub.get_publisher_count() and self._run_over():
+        """Open the gate when a plant and every controller are heard; close it when the plant is gone."""
+        plants = self._plant_subs[0].get_publisher_count()
+        controllers = all(sub.get_publisher_count() for sub in self._controller_subs)
+        if not self._gates and plants and controllers and self._run_over():
             self._begin_run()
-        elif self._gate is not None and not plants:
+        elif self._gates and not plants:
             self._end_plant()
         self._report()
 
@@ -142,9 +209,9 @@ class RerunBridge(Node):
         self._runs += 1
         self._run = _Run(self._runs)
         self._pending.clear()
-        if self._gate is None:
-            msg_type, name, qos = contract.recorder_endpoint(contract.TOPIC_PMU)
-            self._gate = self.create_subscription(msg_type, name, lambda msg: None, qos)
+        if not self._gates:
+            self._gates = [self._subscribe(namespace, contract.TOPIC_PMU, lambda msg: None)
+                           for namespace in self._namespaces]
 
     def _end_plant(self) -> None:
         """The run's plant is gone: close the gate (the next plant waits for the bridge again) and flush.
@@ -152,14 +219,16 @@ class RerunBridge(Node):
         The run stays current until the next one begins, so that its last controller states,
         still on their way when the plant left, are paired and drawn.
         """
-        self.destroy_subscription(self._gate)
-        self._gate = None
+        for gate in self._gates:
+            self.destroy_subscription(gate)
+        self._gates = []
         self._run.plant_gone = True
         self._flush()
 
     def _flush(self) -> None:
-        if self._run is not None and self._run.logger is not None:
-            self._run.logger.flush()
+        if self._run is not None:
+            for logger in self._run.loggers.values():
+                logger.flush()
         self._recording.flush()
 
     def _report(self) -> None:
@@ -171,41 +240,55 @@ class RerunBridge(Node):
     def _on_invariant_set(self, msg) -> None:
         self._boundary = np.array([(p.x, p.y) for p in msg.polygon.points])
 
-    def _on_plant(self, msg) -> None:
-        stamp_ns, _, speed, _ = contract.plant_state_from_message(msg)
+    def _on_plant(self, index: int, msg) -> None:
+        stamp_ns, delta, speed, _ = contract.plant_state_from_message(msg)
         if self._run_over():  # a plant that did not wait for the bridge: its run starts here
             self._begin_run()
         if self._run.t0_ns is None:
             self._run.t0_ns = stamp_ns
-        self._pair(stamp_ns, "plant", speed)
+        self._pair(stamp_ns, "plant", index, (delta, speed))
 
-    def _on_controller(self, msg) -> None:
+    def _on_controller(self, index: int, msg) -> None:
         stamp_ns, signals = contract.controller_state_from_message(msg)
-        self._pair(stamp_ns, "controller", signals)
+        self._pair(stamp_ns, "controller", index, signals)
 
-    def _pair(self, stamp_ns: int, half: str, value) -> None:
-        """Log the sample once both halves with this stamp are in."""
-        sample = self._pending.setdefault(stamp_ns, {})
-        sample[half] = value
-        if len(sample) < 2 or self._run is None or self._run.t0_ns is None:
+    def _pair(self, stamp_ns: int, half: str, index: int, value) -> None:
+        """Log each generator's sample once its controller state and every generator's plant state are in."""
+        sample = self._pending.setdefault(stamp_ns, {"plant": {}, "controller": {}, "logged": set()})
+        sample[half][index] = value
+        size = len(self._namespaces)
+        if len(sample["plant"]) < size or not sample["controller"] or self._run is None or self._run.t0_ns is None:
             if len(self._pending) > _PENDING_LIMIT:  # a half that never came: forget the oldest
                 self._pending.pop(next(iter(self._pending)))
             return
-        del self._pending[stamp_ns]
-        signals, speed, run = sample["controller"], sample["plant"], self._run
-        if run.logger is None:
+        angles = np.array([sample["plant"][i][0] for i in range(size)])
+        if self._net is not None:
+            angles = angles - float(self._net.coi(angles))
+        t_s = (stamp_ns - self._run.t0_ns) / 1e9  # correctly rounded: 0.98, not 0.9800000000000001
+        for i, signals in sample["controller"].items():
+            if i not in sample["logged"]:
+                self._log(i, t_s, angles[i], sample["plant"][i][1], signals)
+                sample["logged"].add(i)
+        if len(sample["logged"]) == size:
+            del self._pending[stamp_ns]
+
+    def _log(self, index: int, t_s: float, angle_rad: float, speed: float, signals: dict) -> None:
+        """One generator's sample: the SMIB's angle deviation, or a network generator's angle to the COI."""
+        run = self._run
+        network = self._net is not None
+        if index not in run.loggers:
             b = signals["battery_limit"]
-            label = run_label(b)
+            label = self._namespaces[index].lstrip("/") if network else run_label(b)
             self._labels[label] = self._labels.get(label, 0) + 1
-            run.label = label if self._labels[label] == 1 else f"{label} #{self._labels[label]}"
-            run.logger = LiveLogger(self._recording, run.label, b, self._f0_hz, omega_boundary=self._boundary,
-                                    color=colour_rgb(b))
-        t_s = (stamp_ns - run.t0_ns) / 1e9  # correctly rounded: 0.98, not 0.9800000000000001
-        run.logger.log(t_s, signals["angle_dev"], speed, signals["battery_power"], signals["saturated"] > 0.5,
-                       signals["w_hat"])
-        run.samples += 1
-        run.first_t_s = t_s if run.samples == 1 else run.first_t_s
-        run.last_t_s = t_s
+            label = label if self._labels[label] == 1 else f"{label} #{self._labels[label]}"
+            run.label = run.label or (self._case if network else label)
+            run.loggers[index] = (
+                LiveLogger(self._recording, label, b, self._f0_hz, color=generator_colour_rgb(index), kind=NETWORK_VIEW)
+                if network else
+                LiveLogger(self._recording, label, b, self._f0_hz, omega_boundary=self._boundary, color=colour_rgb(b)))
+        run.loggers[index].log(t_s, angle_rad if network else signals["angle_dev"], speed, signals["battery_power"],
+                               signals["saturated"] > 0.5, None if network else signals["w_hat"])
+        run.logged(t_s, self._namespaces[index] if network else None)
 
     def close(self) -> None:
         """Draw what is pending, report and flush the stream."""

@@ -24,6 +24,14 @@ entity path                         content
 (2D views draw y down; the flip makes ``d'`` point up) and the ``d``/``d'``
 axes with ticks, sized by the last Omega boundary logged.
 
+A network run (several generators of one case, :data:`NETWORK_VIEW`) is logged
+generator by generator with the label ``gen<i>`` and the same paths, except
+that the angle is the generator's angle relative to the centre of inertia,
+``delta_i - delta_COI`` (rad), at ``/angle_coi/gen<i>``, and that there is no
+W_hat and no phase portrait (no Omega is known for a network). Each generator
+has its own colour (:func:`nni_msgs_adapter.viewing.palette.generator_colour_rgb`),
+its name in the legend; battery powers and limits are in pu of its machine's rating.
+
 All runs logged through :func:`open_recording` (the live bridge, ``nni-replay``)
 share one application id and one recording id (``APP_ID``, ``RECORDING_ID``),
 so that the viewer pools them into one recording: files of different runs
@@ -73,6 +81,20 @@ _LINE_WIDTH_PX = 1.5
 _STRIP_RADIUS_PX = 1.0
 
 
+class ViewKind(NamedTuple):
+    """What a run's angle is and whether it has a phase portrait: a SMIB run or a generator of a network."""
+
+    angle_root: str
+    angle_name: str
+    phase_portrait: bool
+
+
+#: A single machine: the angle deviation d from the equilibrium, and the phase portrait with Omega.
+SMIB_VIEW = ViewKind("/angle_deviation", "d (rad)", True)
+#: A generator of a network: its angle relative to the centre of inertia; no phase portrait.
+NETWORK_VIEW = ViewKind("/angle_coi", "δ-δ_COI (rad)", False)
+
+
 class RunPaths(NamedTuple):
     """Entity paths of one labelled run (see the module docstring)."""
 
@@ -88,7 +110,7 @@ class RunPaths(NamedTuple):
     parameters: str
 
 
-def run_paths(label: str) -> RunPaths:
+def run_paths(label: str, kind: ViewKind = SMIB_VIEW) -> RunPaths:
     """
     Return the entity paths used for the run ``label``.
 
@@ -96,6 +118,8 @@ def run_paths(label: str) -> RunPaths:
     ----------
     label : str
         Free-form run label, e.g. ``"b=0.3"``; it is escaped into one path part.
+    kind : ViewKind
+        :data:`SMIB_VIEW` or :data:`NETWORK_VIEW` (where the angle goes).
 
     Returns
     -------
@@ -104,7 +128,7 @@ def run_paths(label: str) -> RunPaths:
     """
     part = rr.escape_entity_path_part(label)
     return RunPaths(
-        angle=f"/angle_deviation/{part}",
+        angle=f"{kind.angle_root}/{part}",
         frequency=f"/frequency_deviation/{part}",
         power=f"/battery/{part}/power",
         limit_upper=f"/battery/{part}/limit_upper",
@@ -120,9 +144,10 @@ def run_paths(label: str) -> RunPaths:
 def blueprint(
     timeline: str = "sim_time",
     phase_bounds: tuple[tuple[float, float], tuple[float, float]] | None = None,
+    kind: ViewKind = SMIB_VIEW,
 ) -> rrb.Blueprint:
     """
-    Build the viewer layout: five time-series views and the phase portrait.
+    Build the viewer layout: five time-series views and the phase portrait (a network: four views).
 
     Parameters
     ----------
@@ -131,6 +156,9 @@ def blueprint(
     phase_bounds : ((float, float), (float, float)) or None
         Minimum visible ``((d_min, d_max), (d'_min, d'_max))`` of the phase
         portrait in rad and rad/s; ``None`` lets the viewer fit the data.
+    kind : ViewKind
+        :data:`SMIB_VIEW` (angle deviation, W_hat, phase portrait) or
+        :data:`NETWORK_VIEW` (angles relative to the centre of inertia, no W_hat or phase portrait).
 
     Returns
     -------
@@ -148,6 +176,24 @@ def blueprint(
                                   time_ranges=rrb.VisibleTimeRange(timeline, start=rrb.TimeRangeBoundary.infinite(),
                                                                    end=rrb.TimeRangeBoundary.infinite()))
 
+    panels = rrb.TimePanel(timeline=timeline, play_state="Following", state="Collapsed"), \
+        rrb.BlueprintPanel(state="Collapsed"), rrb.SelectionPanel(state="Collapsed")
+    battery = rrb.Vertical(
+        series_view("/battery", "Battery power P_ST and limits +-b (pu)"),
+        series_view("/saturation", "Saturation (flag 0/1)", rrb.ScalarAxis(range=(-0.1, 1.1))),
+        row_shares=[2, 1],
+    )
+    if not kind.phase_portrait:
+        return rrb.Blueprint(
+            rrb.Horizontal(
+                rrb.Vertical(
+                    series_view(kind.angle_root, "Angle relative to the centre of inertia, δ-δ_COI (rad)"),
+                    series_view("/frequency_deviation", "Frequency deviation (Hz)"),
+                ),
+                battery,
+            ),
+            *panels,
+        )
     bounds = None
     if phase_bounds is not None:
         (x_min, x_max), (y_min, y_max) = phase_bounds
@@ -167,21 +213,15 @@ def blueprint(
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
-                series_view("/angle_deviation", "Angle deviation (rad)"),
+                series_view(kind.angle_root, "Angle deviation (rad)"),
                 series_view("/frequency_deviation", "Frequency deviation (Hz)"),
                 series_view("/w_hat", "W_hat, closed-loop Lyapunov candidate (pu rad)"),
             ),
-            rrb.Vertical(
-                series_view("/battery", "Battery power P_ST and limits +-b (pu)"),
-                series_view("/saturation", "Saturation (flag 0/1)", rrb.ScalarAxis(range=(-0.1, 1.1))),
-                row_shares=[2, 1],
-            ),
+            battery,
             phase_view,
             column_shares=[1, 1, 0.8],
         ),
-        rrb.TimePanel(timeline=timeline, play_state="Following", state="Collapsed"),
-        rrb.BlueprintPanel(state="Collapsed"),
-        rrb.SelectionPanel(state="Collapsed"),
+        *panels,
     )
 
 
@@ -272,6 +312,7 @@ def log_trajectory(
     *,
     color: tuple[int, int, int] | None = None,
     segment_samples: int = PHASE_SEGMENT_SAMPLES,
+    kind: ViewKind = SMIB_VIEW,
 ) -> RunPaths:
     """
     Log a whole run column-wise (``send_columns``: fast for 1e4-1e5 samples).
@@ -308,6 +349,9 @@ def log_trajectory(
         RGB colour of the run; ``None``: :func:`nni_msgs_adapter.palette.colour_rgb` of ``b``.
     segment_samples : int
         Samples per phase-portrait strip segment.
+    kind : ViewKind
+        :data:`SMIB_VIEW`, or :data:`NETWORK_VIEW` (``angle_dev_rad`` is then
+        ``delta - delta_COI``; no phase portrait is drawn).
 
     Returns
     -------
@@ -330,8 +374,8 @@ def log_trajectory(
         raise ValueError("sample arrays must be 1-D with one common non-zero length")
     t, d, d_dot, power, sat = series[:5]
     last = _segment_ends(n, segment_samples)
-    paths = run_paths(label)
-    _log_run_statics(recording, label, paths, b, f0_hz, omega_boundary, color)
+    paths = run_paths(label, kind)
+    _log_run_statics(recording, label, paths, b, f0_hz, omega_boundary, color, kind)
 
     time = [rr.TimeColumn(timeline, duration=t)]
     values = {
@@ -348,6 +392,8 @@ def log_trajectory(
         ends = [rr.TimeColumn(timeline, duration=t[[0, -1]])]
         for path, limit in ((paths.limit_upper, b), (paths.limit_lower, -b)):
             recording.send_columns(path, indexes=ends, columns=rr.Scalars.columns(scalars=[limit, limit]))
+    if not kind.phase_portrait:
+        return paths
 
     points = np.column_stack([d, d_dot])
     first = np.concatenate([[0], last[:-1]])
@@ -404,16 +450,18 @@ class LiveLogger:
         *,
         color: tuple[int, int, int] | None = None,
         segment_samples: int = PHASE_SEGMENT_SAMPLES,
+        kind: ViewKind = SMIB_VIEW,
     ) -> None:
         if segment_samples < 1:
             raise ValueError("segment_samples must be >= 1")
         self.recording = recording
-        self.paths = run_paths(label)
+        self.paths = run_paths(label, kind)
+        self.kind = kind
         self.b = float(b)
         self.timeline = timeline
         self.segment_samples = segment_samples
         self._pending: list[tuple[float, float]] = []
-        _log_run_statics(recording, label, self.paths, b, f0_hz, omega_boundary, color)
+        _log_run_statics(recording, label, self.paths, b, f0_hz, omega_boundary, color, kind)
 
     def log(
         self,
@@ -453,6 +501,8 @@ class LiveLogger:
         if math.isfinite(self.b):
             rec.log(paths.limit_upper, rr.Scalars(self.b))
             rec.log(paths.limit_lower, rr.Scalars(-self.b))
+        if not self.kind.phase_portrait:
+            return
         self._pending.append((angle_dev_rad, speed_dev_rad_s))
         if len(self._pending) > self.segment_samples:
             self.flush()
@@ -498,10 +548,13 @@ def _log_run_statics(
     f0_hz: float,
     omega_boundary: np.ndarray | None,
     color: tuple[int, int, int] | None,
+    kind: ViewKind,
 ) -> None:
-    """Log the static styling, parameters and Omega boundary of a run, and the y-flip."""
+    """Log the static styling, parameters and Omega boundary of a run, and the y-flip (a SMIB run's)."""
     if not b >= 0.0:
         raise ValueError(f"battery limit b must be >= 0 (pu), got {b}")
+    if not kind.phase_portrait and omega_boundary is not None:
+        raise ValueError("omega_boundary: a network run has no phase portrait to draw it in")
     boundary = None
     if omega_boundary is not None:
         boundary = np.asarray(omega_boundary, dtype=np.float64)
@@ -522,16 +575,17 @@ def _log_run_statics(
         return rr.SeriesLines(colors=rgb, widths=width, names=f"{name} {label}")
 
     styles = {
-        paths.angle: line("d (rad)"),
+        paths.angle: line(kind.angle_name),
         paths.frequency: line("Δf (Hz)"),
         paths.power: line("P_ST (pu)", step=True),
         paths.saturation: line("saturated (0/1)", step=True),
-        paths.w_hat: line("W_hat (pu rad)"),
         paths.parameters: rr.AnyValues(b=b, f0_hz=f0_hz),
-        # Static colour and width apply to every (time-stamped) trajectory segment.
-        paths.trajectory: rr.LineStrips2D.from_fields(colors=color, radii=radius),
-        PHASE_PATH: _Y_UP,
     }
+    if kind.phase_portrait:
+        styles[paths.w_hat] = line("W_hat (pu rad)")
+        # Static colour and width apply to every (time-stamped) trajectory segment.
+        styles[paths.trajectory] = rr.LineStrips2D.from_fields(colors=color, radii=radius)
+        styles[PHASE_PATH] = _Y_UP
     if math.isfinite(b):
         limit_color = (*color, _LIMIT_ALPHA)
         styles[paths.limit_upper] = line("+b (pu)", step=True, rgb=limit_color, width=1.0)
