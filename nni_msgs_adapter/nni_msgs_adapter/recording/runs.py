@@ -172,7 +172,9 @@ def network_trajectory(runs: dict[str, GeneratorRun], net, namespaces, limits_pu
     RecordingError
         If a namespace is missing or the generators were not recorded at the same instants.
     """
-    from nni_battery_controller.network_sim import NetworkTrajectory
+    from dataclasses import replace
+
+    from nni_msgs_adapter.recording.network_runs import network_run
 
     missing = [ns for ns in namespaces if ns not in runs]
     if missing:
@@ -183,16 +185,8 @@ def network_trajectory(runs: dict[str, GeneratorRun], net, namespaces, limits_pu
     if uneven:
         raise RecordingError(f"{', '.join(uneven)} recorded other instants than {chosen[0].namespace} "
                              f"({', '.join(str(run.stamp_ns.size) for run in chosen)} states)")
-    scale = np.asarray(net.mbase_mva, dtype=float) / net.base_mva
-
-    def stacked(values):
-        return np.stack(values, axis=1)[:, :, None]
-
-    return NetworkTrajectory(
-        net, chosen[0].t_s, stacked([run.delta_rad for run in chosen]), stacked([run.speed_rad_s for run in chosen]),
-        stacked([run.battery_power_pu * scale[i] for i, run in enumerate(chosen)]),
-        stacked([run.signals["w"] * scale[i] for i, run in enumerate(chosen)]), stacked([run.saturated for run in chosen]),
-        (np.asarray(limits_pu_mbase, dtype=float) * scale)[:, None])
+    run = network_run(net, dict(zip(namespaces, chosen)))
+    return replace(run, limits_pu=np.asarray(limits_pu_mbase, dtype=float)).trajectory()
 
 
 def read_generator_runs(path: str | os.PathLike[str]) -> dict[str, GeneratorRun]:
