@@ -166,3 +166,58 @@ class AngleDisplacement:
     def breakpoints(self) -> tuple[float, ...]:
         """None."""
         return ()
+
+
+#: The scenarios of a network (what :func:`from_values` builds) and, per scenario-specific value (the
+#: network plant node's parameter names), the scenarios it belongs to.
+NETWORK_SCENARIOS = ("bus_fault", "line_trip", "mechanical_step", "angle_displacement")
+SCENARIO_PARAMETERS = {
+    "fault_bus": ("bus_fault",), "fault_r": ("bus_fault",), "fault_x": ("bus_fault",),
+    "clearing_time": ("bus_fault",), "trip_line": ("bus_fault", "line_trip"),
+    "step_p_mech": ("mechanical_step",), "step_duration": ("mechanical_step",),
+    "displace": ("angle_displacement",), "machine": ("mechanical_step", "angle_displacement"),
+}
+
+
+def machine_index(net: Network, bus: int) -> int:
+    """Index of the generator at external bus ``bus``; ValueError naming the generators' buses when none is there."""
+    where = np.flatnonzero(net.gen_bus == bus)
+    if where.size != 1:
+        raise ValueError(f"machine {bus}: no generator at that bus (generators at {', '.join(map(str, net.gen_bus))})")
+    return int(where[0])
+
+
+def from_values(net: Network, values: dict):
+    """The disturbance ``values["scenario"]`` names, from the values of :data:`SCENARIO_PARAMETERS`.
+
+    ``trip_line``: ``"FROM TO [CIRCUIT]"`` or empty; ``machine``: generator
+    bus numbers (one for mechanical_step); ``step_p_mech``: pu of the machine's
+    rating; ``fault_r``, ``fault_x``: pu on the system base. The values of
+    other scenarios are not read. ValueError names what is wrong or missing.
+    """
+    scenario = values["scenario"]
+    if scenario not in NETWORK_SCENARIOS:
+        raise ValueError(f"scenario must be one of {', '.join(NETWORK_SCENARIOS)}, got {scenario!r}")
+    if scenario in ("bus_fault", "line_trip"):
+        words = values["trip_line"].split()
+        if len(words) not in (0, 2, 3) or not all(w.isdigit() for w in words):
+            raise ValueError(f"trip_line takes 'FROM TO [CIRCUIT]', got {values['trip_line']!r}")
+        trip = (net.bus_model.branch_index(*map(int, words)),) if words else ()
+        if scenario == "line_trip":
+            if not trip:
+                raise ValueError("scenario line_trip needs trip_line")
+            return LineTrip(net, trip)
+        net.bus_model.bus_index(values["fault_bus"])
+        return BusFault(net, values["fault_bus"], values["clearing_time"],
+                        complex(values["fault_r"], values["fault_x"]), trip)
+    if not len(values["machine"]):
+        raise ValueError(f"scenario {scenario} needs machine (generator bus numbers)")
+    machines = [machine_index(net, bus) for bus in values["machine"]]
+    if scenario == "mechanical_step":
+        if len(machines) != 1:
+            raise ValueError(f"scenario mechanical_step needs one machine, got {list(values['machine'])}")
+        p_mech = float(net.pu_of_machine(np.full(net.size, values["step_p_mech"]))[machines[0]])
+        return MechanicalStep(machines[0], p_mech, values["step_duration"])
+    displacement = np.zeros(net.size)
+    displacement[machines] = values["displace"]
+    return AngleDisplacement(displacement)
