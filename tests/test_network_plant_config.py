@@ -6,7 +6,12 @@ import json
 import subprocess
 import sys
 
+import pytest
+from rosproc import fresh_domain_id, ros_env
 from test_defaults import overlay, run
+
+from nni_msgs_adapter.ros.defaults import config_path
+from nni_plant_sim.network_plant_node import SUMMARY_PREFIX
 
 COUNT_READS = """
 import json
@@ -33,3 +38,18 @@ def test_a_default_changed_in_network_plant_yaml_is_what_the_node_shows(tmp_path
     lines = run("network_plant_node", "nni_plant_sim", ["--help"], prefix, tmp_path).splitlines()
     assert "  fault_bus [8]" in lines and "  machine [[2]]" in lines and "  pmu_rate_hz [40.0]" in lines
     assert "  case [kundur_two_area]" in lines and "  scenario [bus_fault]" in lines
+
+
+@pytest.mark.ros
+def test_the_network_plant_runs_with_its_own_yaml_as_params_file(tmp_path):
+    """As a launch file passes it (``parameters=[<share>/config/network_plant.yaml, ...]``): its ``machine: []``
+    (which rcl reads as unset) and every other default are taken; the run ends with its per-generator summary."""
+    yaml_path = config_path("nni_plant_sim", "network_plant.yaml")
+    done = subprocess.run([sys.executable, "-m", "nni_plant_sim.network_plant_node", "--ros-args", "--params-file",
+                           str(yaml_path), "-p", "mode:=realtime", "-p", "duration_s:=0.2", "-p", "wait_for_subscribers:=0"],
+                          env=ros_env(fresh_domain_id()), capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    line = next(line for line in done.stdout.splitlines() if line.startswith(SUMMARY_PREFIX))
+    summary = json.loads(line[len(SUMMARY_PREFIX):])
+    assert list(summary) == ["gen1", "gen2", "gen3", "gen4"]
+    assert all(values["run_ended"] and values["sim_time_s"] == pytest.approx(0.2) for values in summary.values()), summary
