@@ -54,7 +54,8 @@ class PlantNodeBase(Node):
         self._loop = None  # the reporting core, from the start of the run
         self._configure(values)
         install_validation(self, specs, self._validate, self._install)
-        self._lockstep, self.done, self._scenario = values["mode"] == "lockstep", Future(), StartingAt(self._fault, math.inf, self._before)
+        self._lockstep, self.done = values["mode"] == "lockstep", Future()
+        self._scenario = StartingAt(self._fault, math.inf, self._before)  # pre-fault until the fault starts
         self._wait = SubscriberWait(values["wait_for_subscribers"], values["discovery_settle_s"],
                                     values["wait_timeout_s"], self._now_ns())
         self._t0_ns, self._finished_ns, self._gave_up = None, None, False
