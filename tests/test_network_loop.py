@@ -19,7 +19,7 @@ from nni_battery_controller.network_sim import NetworkLaw, NetworkTrajectory, as
 from nni_msgs_adapter.ros import contract
 from nni_plant_sim.cases import load_network
 from nni_plant_sim.network_plant_node import SUMMARY_PREFIX
-from nni_plant_sim.network_scenarios import BusFault
+from nni_plant_sim.network_scenarios import AngleDisplacement, BusFault, MechanicalStep
 from rosproc import Probe, busy_processes, fresh_domain_id, node_processes
 
 pytestmark = pytest.mark.ros
@@ -47,7 +47,7 @@ def summary(plant) -> dict:
     return json.loads(line[len(SUMMARY_PREFIX):])
 
 
-def run_network(tmp_path, net, b: float, answering=None, plant_extra=None):
+def run_network(tmp_path, net, b: float, answering=None, plant_extra=None, disturbance=FAULT):
     """Plant + a controller in each generator's namespace (those in ``answering``, default all); the probes' states."""
     domain = fresh_domain_id()
     namespaces = [f"gen{i + 1}" for i in range(net.size)]
@@ -61,7 +61,7 @@ def run_network(tmp_path, net, b: float, answering=None, plant_extra=None):
                 else:  # a controller that reads the PMU and never answers: the plant pairs with it, times out
                     silent.append(Probe(domain, (contract.TOPIC_PMU,), namespace=ns, node_name="silent_controller"))
                     silent[-1].wait_matched(contract.TOPIC_BATTERY_COMMAND, 0, 0.0)  # makes its writer
-            params = {**FAULT, "duration_s": DURATION_S, "pmu_rate_hz": RATE_HZ, "wait_for_subscribers": 2,
+            params = {**disturbance, "duration_s": DURATION_S, "pmu_rate_hz": RATE_HZ, "wait_for_subscribers": 2,
                       **(plant_extra or {})}
             plant = start("plant", PLANT, params)
             assert plant.wait(timeout=120.0) == 0, plant.output()
@@ -109,6 +109,36 @@ def test_kundur_lockstep_with_four_controller_processes_equals_the_offline_netwo
         assert values["foreign_commands"] == 0 and values["paired_controller"].endswith(f"/{ns}/controller"), values
 
 
+def offline_disturbance(net, name: str):
+    """The offline scenario that the plant parameters of test_kundur_lockstep_scenarios describe, built directly."""
+    if name == "mechanical_step":  # G2 (bus 2) at 0.95 pu of its rating for 0.5 s
+        return MechanicalStep(1, 0.95 * float(net.mbase_mva[1] / net.base_mva), 0.5)
+    return AngleDisplacement(np.array([0.3, 0.0, 0.3, 0.0]))  # G1 and G3 (buses 1, 3) 0.3 rad ahead
+
+
+@pytest.mark.parametrize("name, disturbance", [
+    ("mechanical_step", {"scenario": "mechanical_step", "machine": [2], "step_p_mech": 0.95, "step_duration": 0.5}),
+    ("angle_displacement", {"scenario": "angle_displacement", "machine": [1, 3], "displace": 0.3}),
+])
+def test_kundur_lockstep_scenarios_with_the_offline_option_names_equal_the_offline_simulation(tmp_path, kundur, name,
+                                                                                              disturbance):
+    """The network plant's mechanical_step and angle_displacement, b = 0.1 pu: network_sim's trajectory (1e-12).
+
+    The tolerance is that of the bus fault above (the same advance(), law and base conversion).
+    """
+    recorded, plant_summary = run_network(tmp_path, kundur, 0.1, disturbance=disturbance)
+    law = NetworkLaw.uniform(kundur, 0.1, 1.0, 1.1, 1.0)
+    offline = simulate_network(kundur, law, offline_disturbance(kundur, name), [0.1], DURATION_S, RATE_HZ)
+    scale = kundur.mbase_mva / kundur.base_mva
+    assert np.ptp(offline.delta_rad[:, :, 0], axis=0).min() > 1e-3, "every machine moves"
+    for i, states in enumerate(recorded):
+        assert states.shape[0] == offline.t_s.size, f"gen{i + 1}: one plant state per sample, t_0 .. t_n"
+        np.testing.assert_allclose(states[:, 1], offline.delta_rad[:, i, 0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(states[:, 2], offline.speed_rad_s[:, i, 0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(states[:-1, 3], offline.battery_power_pu[:-1, i, 0] / scale[i], rtol=0, atol=1e-12)
+    assert all(values["deadline_misses"] == 0 for values in plant_summary.values()), plant_summary
+
+
 def test_a_generator_whose_controller_never_answers_times_out_alone_and_the_run_ends(tmp_path, kundur):
     """gen4's only writer never answers: each of its samples times out (counted for gen4 only), zero power there.
 
@@ -128,6 +158,14 @@ def test_a_generator_whose_controller_never_answers_times_out_alone_and_the_run_
     ({"scenario": "line_trip", "trip_line": "7 8", "clearing_time": 0.2},
      "not for scenario line_trip: clearing_time (bus_fault only)"),
     ({"scenario": "line_trip"}, "scenario line_trip needs trip_line"),
+    ({"machine": [2]}, "not for scenario bus_fault: machine (mechanical_step, angle_displacement only)"),
+    ({"scenario": "mechanical_step", "machine": [2], "displace": 0.3, "trip_line": "7 8"},
+     "not for scenario mechanical_step: trip_line (bus_fault, line_trip only), displace (angle_displacement only)"),
+    ({"scenario": "angle_displacement", "displace": 0.3}, "scenario angle_displacement needs machine (generator bus "
+                                                          "numbers)"),
+    ({"scenario": "mechanical_step", "machine": [1, 2]}, "scenario mechanical_step needs one machine, got [1, 2]"),
+    ({"scenario": "angle_displacement", "machine": [1, 5]},
+     "machine 5: no generator at that bus (generators at 1, 2, 3, 4)"),
 ])
 def test_a_network_plant_parameter_that_cannot_work_is_refused_with_one_line(tmp_path, params, expected):
     domain = fresh_domain_id()
@@ -256,3 +294,67 @@ def test_a_controller_with_g_measured_answers_from_the_pmus_power_and_counts_wha
             assert (values["malformed"], values["non_finite"]) == ("1", "1")
         finally:
             probe.close()
+
+
+def test_with_fault_at_start_false_the_network_waits_for_the_start_fault_service(tmp_path, kundur):
+    """Realtime: at rest on the pre-fault equilibrium until plant/start_fault; the fault from then; once only."""
+    from std_srvs.srv import Trigger
+    from test_node_parameters import _call
+
+    domain, b = fresh_domain_id(), 0.1
+    probes = [Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_PMU), namespace=f"gen{i + 1}")
+              for i in range(kundur.size)]  # on the pmu too: the plant starts once they listen
+    try:
+        with node_processes(tmp_path, domain) as start:
+            for i in range(kundur.size):
+                start(f"controller_gen{i + 1}", CONTROLLER, controller_parameters(kundur, i, b),
+                      ("-r", f"__ns:=/gen{i + 1}"))
+            plant = start("plant", PLANT, {**FAULT, "mode": "realtime", "duration_s": 3.0, "pmu_rate_hz": RATE_HZ,
+                                           "fault_at_start": False, "wait_for_subscribers": 2})
+            client = probes[0].node.create_client(Trigger, "/" + contract.SERVICE_START_FAULT)
+            assert client.wait_for_service(timeout_sec=60.0)
+            assert len(probes[0].wait_for(contract.TOPIC_PLANT_STATE, int(RATE_HZ), 60.0)) >= RATE_HZ  # 1 s of it
+            first = _call(client.call_async(Trigger.Request()))
+            again = _call(client.call_async(Trigger.Request()))
+            assert plant.wait(timeout=60.0) == 0, plant.output()
+            states = [probe.wait_for(contract.TOPIC_PLANT_STATE, int(3.0 * RATE_HZ) + 1, 5.0) for probe in probes]
+    finally:
+        for probe in probes:
+            probe.close()
+    assert first.success and first.message.startswith("fault started at t = "), first.message
+    assert not again.success and again.message == "the fault has already started"
+    fault_s = float(first.message.split("= ")[1].split()[0])
+    assert fault_s >= 1.0
+    for i, rows in enumerate(states):
+        stamp, delta, speed, _ = np.array([contract.plant_state_from_message(m) for m in rows]).T
+        before = (stamp - stamp[0]) * 1e-9 <= fault_s
+        np.testing.assert_allclose(delta[before], kundur.delta_bar_rad[i], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(speed[before], 0.0, rtol=0, atol=1e-9)
+        assert np.abs(speed[~before]).max() > 1e-3, f"gen{i + 1}: the fault moves the machine"
+
+
+def test_pmu_noise_is_drawn_per_generator_from_its_own_seed(tmp_path, kundur):
+    """Angle noise 0.01 rad, noise_seed 5: generator i's measured minus true angles are the normal draws of seed 4 + i."""
+    domain, std, seed = fresh_domain_id(), 0.01, 5
+    topics = (contract.TOPIC_PMU, contract.TOPIC_PLANT_STATE)
+    probes = [Probe(domain, topics, namespace=f"gen{i + 1}") for i in range(kundur.size)]
+    try:
+        with node_processes(tmp_path, domain) as start:
+            for i in range(kundur.size):
+                start(f"controller_gen{i + 1}", CONTROLLER, controller_parameters(kundur, i, 0.1),
+                      ("-r", f"__ns:=/gen{i + 1}"))
+            plant = start("plant", PLANT, {**FAULT, "duration_s": 1.0, "pmu_rate_hz": RATE_HZ, "wait_for_subscribers": 2,
+                                           "noise_angle_std_rad": std, "noise_seed": seed})
+            assert plant.wait(timeout=120.0) == 0, plant.output()
+            n = int(RATE_HZ)
+            runs = [(probe.wait_for(contract.TOPIC_PMU, n, 5.0), probe.wait_for(contract.TOPIC_PLANT_STATE, n + 1, 5.0))
+                    for probe in probes]
+    finally:
+        for probe in probes:
+            probe.close()
+    for i, (pmu, states) in enumerate(runs):
+        measured = np.array([contract.pmu_from_message(m)[1:] for m in pmu])
+        true = np.array([contract.plant_state_from_message(m)[1:3] for m in states[:n]])
+        draws = np.random.default_rng(seed + i).normal(0.0, std, n)
+        np.testing.assert_allclose(measured[:, 0] - true[:, 0], draws, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(measured[:, 1], true[:, 1])  # no speed noise asked for

@@ -18,12 +18,24 @@ import numpy as np
 from nni_plant_sim.network import Coupling, Network, Switched
 
 
-def _equilibrium(net: Network) -> np.ndarray:
-    return np.stack((net.delta_bar_rad, np.zeros(net.size)))
+class _FromEquilibrium:
+    """A disturbance that starts from the pre-fault equilibrium."""
+
+    def initial_state(self, net: Network) -> np.ndarray:
+        """Pre-fault equilibrium."""
+        return np.stack((net.delta_bar_rad, np.zeros(net.size)))
+
+
+class _SameInEveryRun:
+    """A disturbance that does not differ between the runs of a batch."""
+
+    def narrowed(self, keep):
+        """The scenario for a subset of a batch's runs: itself."""
+        return self
 
 
 @dataclass(frozen=True)
-class BusFault:
+class BusFault(_FromEquilibrium):
     """Three-phase fault at ``bus`` through ``impedance_pu`` (system base), cleared at ``clearing_time_s``.
 
     Clearing removes the fault and trips the branches ``trip`` (indices; none:
@@ -50,10 +62,6 @@ class BusFault:
         object.__setattr__(self, "_during", self.net.faulted(self.bus, self.impedance_pu))
         object.__setattr__(self, "_after", self.net.without(self.trip) if self.trip else self.net.coupling)
 
-    def initial_state(self, net: Network) -> np.ndarray:
-        """Pre-fault equilibrium."""
-        return _equilibrium(net)
-
     def network(self, t_s: float, net: Network):
         """Faulted network until clearing (per run for an array of clearing times), then the post-fault one.
 
@@ -78,7 +86,7 @@ class BusFault:
 
 
 @dataclass(frozen=True)
-class LineTrip:
+class LineTrip(_FromEquilibrium, _SameInEveryRun):
     """The branches ``trip`` (indices) open at t = 0 without a fault; starts from the pre-fault equilibrium."""
 
     net: Network
@@ -90,17 +98,9 @@ class LineTrip:
             raise ValueError("a line trip needs at least one branch to trip")
         object.__setattr__(self, "_after", self.net.without(self.trip))
 
-    def initial_state(self, net: Network) -> np.ndarray:
-        """Pre-fault equilibrium."""
-        return _equilibrium(net)
-
     def network(self, t_s: float, net: Network):
         """The network without the tripped branches."""
         return net.p_mech_pu, self._after
-
-    def narrowed(self, keep):
-        """The scenario for a subset of a batch's runs: itself (it does not differ between runs)."""
-        return self
 
     def breakpoints(self) -> tuple[float, ...]:
         """None: the trip is at t = 0."""
@@ -108,7 +108,7 @@ class LineTrip:
 
 
 @dataclass(frozen=True)
-class MechanicalStep:
+class MechanicalStep(_FromEquilibrium, _SameInEveryRun):
     """Generator ``machine`` (index) runs at ``p_mech_pu`` (system base) for ``duration_s`` (inf: for good)."""
 
     machine: int
@@ -121,10 +121,6 @@ class MechanicalStep:
         if not self.duration_s > 0:
             raise ValueError(f"duration of the power step must be positive, got {self.duration_s}")
 
-    def initial_state(self, net: Network) -> np.ndarray:
-        """Pre-fault equilibrium."""
-        return _equilibrium(net)
-
     def network(self, t_s: float, net: Network):
         """Pre-fault network; the stepped machine's P_m until ``duration_s``."""
         p_mech = net.p_mech_pu.copy()
@@ -132,17 +128,13 @@ class MechanicalStep:
             p_mech[self.machine] = self.p_mech_pu
         return p_mech, net.coupling
 
-    def narrowed(self, keep):
-        """The scenario for a subset of a batch's runs: itself (it does not differ between runs)."""
-        return self
-
     def breakpoints(self) -> tuple[float, ...]:
         """The end of the step, if it ends."""
         return (self.duration_s,) if math.isfinite(self.duration_s) else ()
 
 
 @dataclass(frozen=True)
-class AngleDisplacement:
+class AngleDisplacement(_SameInEveryRun):
     """Rotor angles start displaced by ``displacement_rad`` (shape (N,)) from equilibrium, network intact."""
 
     displacement_rad: np.ndarray
@@ -159,10 +151,61 @@ class AngleDisplacement:
         """The pre-fault network and powers."""
         return net.p_mech_pu, net.coupling
 
-    def narrowed(self, keep):
-        """The scenario for a subset of a batch's runs: itself (it does not differ between runs)."""
-        return self
-
     def breakpoints(self) -> tuple[float, ...]:
         """None."""
         return ()
+
+
+#: The scenarios of a network (what :func:`from_values` builds) and, per scenario-specific value (the
+#: network plant node's parameter names), the scenarios it belongs to.
+NETWORK_SCENARIOS = ("bus_fault", "line_trip", "mechanical_step", "angle_displacement")
+SCENARIO_PARAMETERS = {
+    "fault_bus": ("bus_fault",), "fault_r": ("bus_fault",), "fault_x": ("bus_fault",),
+    "clearing_time": ("bus_fault",), "trip_line": ("bus_fault", "line_trip"),
+    "step_p_mech": ("mechanical_step",), "step_duration": ("mechanical_step",),
+    "displace": ("angle_displacement",), "machine": ("mechanical_step", "angle_displacement"),
+}
+
+
+def machine_index(net: Network, bus: int) -> int:
+    """Index of the generator at external bus ``bus``; ValueError naming the generators' buses when none is there."""
+    where = np.flatnonzero(net.gen_bus == bus)
+    if where.size != 1:
+        raise ValueError(f"machine {bus}: no generator at that bus (generators at {', '.join(map(str, net.gen_bus))})")
+    return int(where[0])
+
+
+def from_values(net: Network, values: dict):
+    """The disturbance ``values["scenario"]`` names, from the values of :data:`SCENARIO_PARAMETERS`.
+
+    ``trip_line``: ``"FROM TO [CIRCUIT]"`` or empty; ``machine``: generator
+    bus numbers (one for mechanical_step); ``step_p_mech``: pu of the machine's
+    rating; ``fault_r``, ``fault_x``: pu on the system base. The values of
+    other scenarios are not read. ValueError names what is wrong or missing.
+    """
+    scenario = values["scenario"]
+    if scenario not in NETWORK_SCENARIOS:
+        raise ValueError(f"scenario must be one of {', '.join(NETWORK_SCENARIOS)}, got {scenario!r}")
+    if scenario in ("bus_fault", "line_trip"):
+        words = values["trip_line"].split()
+        if len(words) not in (0, 2, 3) or not all(w.isdigit() for w in words):
+            raise ValueError(f"trip_line takes 'FROM TO [CIRCUIT]', got {values['trip_line']!r}")
+        trip = (net.bus_model.branch_index(*map(int, words)),) if words else ()
+        if scenario == "line_trip":
+            if not trip:
+                raise ValueError("scenario line_trip needs trip_line")
+            return LineTrip(net, trip)
+        net.bus_model.bus_index(values["fault_bus"])
+        return BusFault(net, values["fault_bus"], values["clearing_time"],
+                        complex(values["fault_r"], values["fault_x"]), trip)
+    if not len(values["machine"]):
+        raise ValueError(f"scenario {scenario} needs machine (generator bus numbers)")
+    machines = [machine_index(net, bus) for bus in values["machine"]]
+    if scenario == "mechanical_step":
+        if len(machines) != 1:
+            raise ValueError(f"scenario mechanical_step needs one machine, got {list(values['machine'])}")
+        p_mech = float(net.pu_of_machine(np.full(net.size, values["step_p_mech"]))[machines[0]])
+        return MechanicalStep(machines[0], p_mech, values["step_duration"])
+    displacement = np.zeros(net.size)
+    displacement[machines] = values["displace"]
+    return AngleDisplacement(displacement)

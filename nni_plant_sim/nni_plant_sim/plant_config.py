@@ -1,7 +1,10 @@
-"""The plant node's parameters: declared once with unit and range, and what they build.
+"""The plant nodes' parameters: declared once with unit and range, and what they build.
 
-Read by :mod:`nni_plant_sim.plant_node`; the defaults live in ``config/plant.yaml``, read on the
-first call of :func:`parameters` (not at import).
+:func:`run_parameters` are those of every plant node (time mode, start, the
+batteries' rating, the PMU, the timeouts; :mod:`nni_plant_sim.plant_node_base`
+reads them); :func:`parameters` is the SMIB plant node's table, whose defaults
+live in ``config/plant.yaml``, read on the first call (not at import). The
+network plant's table is :mod:`nni_plant_sim.network_plant_config`.
 """
 
 from __future__ import annotations
@@ -15,10 +18,8 @@ from nni_plant_sim.model import SmibParams
 from nni_plant_sim.scenarios import SCENARIOS
 
 
-@functools.cache
-def parameters() -> tuple[Spec, ...]:
-    """The plant's parameters, their defaults from ``config/plant.yaml`` (read once, on first use)."""
-    defaults = plant_defaults()
+def run_parameters(defaults: dict) -> tuple[Spec, ...]:
+    """What every plant node declares, its defaults from ``defaults`` (the node's YAML)."""
     return (
         Spec("mode", defaults["mode"], "Time mode: realtime (wall clock) or lockstep (simulated /clock).",
              choices=("realtime", "lockstep")),
@@ -28,11 +29,32 @@ def parameters() -> tuple[Spec, ...]:
              0.0, 1e9),
         Spec("fault_at_start", defaults["fault_at_start"], "Start the fault scenario at t = 0; false waits for plant/start_fault."),
         Spec("wait_for_subscribers", defaults["wait_for_subscribers"], "Start only when this many subscribers listen on pmu "
-             "(the controller, the logger) and a controller publishes on battery/command; 0 starts at once.", 0, 100),
+             "(the controller, the logger; a network: on each generator's) and a controller publishes on battery/command; "
+             "0 starts at once.", 0, 100),
         Spec("wait_timeout_s", defaults["wait_timeout_s"], "Give up (error, non-zero exit) after waiting this long for them, s.",
              0.1, 1e6),
         Spec("discovery_settle_s", defaults["discovery_settle_s"], "Once the subscribers are there, wait this long so that every other "
              "endpoint of theirs has matched too (DDS discovery), s.", 0.0, 10.0),
+        Spec("battery_rating_pu", defaults["battery_rating_pu"], "Battery inverter rating (at each generator, pu of its "
+             "machine's rating): commands are clipped to +-rating, pu.", 0.0, 1e3),
+        Spec("noise_angle_std_rad", defaults["noise_angle_std_rad"], "PMU angle noise standard deviation, rad.", 0.0, 1.0),
+        Spec("noise_speed_std_rad_s", defaults["noise_speed_std_rad_s"], "PMU speed noise standard deviation, rad/s.", 0.0, 10.0),
+        Spec("quantisation_rad", defaults["quantisation_rad"], "PMU angle resolution, rad (0: none).", 0.0, 1.0),
+        Spec("noise_seed", defaults["noise_seed"], "Seed of the measurement noise generator (generator i of a network: "
+             "seed + i - 1).", 0, 2**31 - 1),
+        Spec("command_timeout_s", defaults["command_timeout_s"], "realtime: a battery command older than this (from its "
+             "measurement's instant) is dropped, and the one in force decays to zero, s.", 1e-3, 100.0),
+        Spec("lockstep_timeout_s", defaults["lockstep_timeout_s"], "lockstep: wall time to wait for a command before applying zero, s.",
+             1e-3, 100.0),
+    )
+
+
+@functools.cache
+def parameters() -> tuple[Spec, ...]:
+    """The SMIB plant's parameters, their defaults from ``config/plant.yaml`` (read once, on first use)."""
+    defaults = plant_defaults()
+    return (
+        *run_parameters(defaults),
         Spec("inertia_h_s", defaults["inertia_h_s"], "Inertia constant H, s.", 1e-3, 1e3),
         Spec("damping_pu", defaults["damping_pu"], "Damping D, pu power per rad/s.", 0.0, 1e3),
         Spec("p_mech_pu", defaults["p_mech_pu"], "Pre-fault mechanical power P_M, pu (< P_max).", 0.0, 1e3),
@@ -45,22 +67,7 @@ def parameters() -> tuple[Spec, ...]:
         Spec("step_duration_s", defaults["step_duration_s"], "mechanical_step: length of the step, s (.inf: for good).", 1e-6, math.inf),
         Spec("fault_p_max_pu", defaults["fault_p_max_pu"], "transfer_limit_fault: P_max while the fault is on, pu.", 0.0, 1e3),
         Spec("clearing_time_s", defaults["clearing_time_s"], "transfer_limit_fault: clearing time, s.", 1e-6, 1e3),
-        Spec("battery_rating_pu", defaults["battery_rating_pu"], "Battery inverter rating: commands are clipped to +-rating, pu.",
-             0.0, 1e3),
-        Spec("noise_angle_std_rad", defaults["noise_angle_std_rad"], "PMU angle noise standard deviation, rad.", 0.0, 1.0),
-        Spec("noise_speed_std_rad_s", defaults["noise_speed_std_rad_s"], "PMU speed noise standard deviation, rad/s.", 0.0, 10.0),
-        Spec("quantisation_rad", defaults["quantisation_rad"], "PMU angle resolution, rad (0: none).", 0.0, 1.0),
-        Spec("noise_seed", defaults["noise_seed"], "Seed of the measurement noise generator.", 0, 2**31 - 1),
-        Spec("command_timeout_s", defaults["command_timeout_s"], "realtime: a battery command older than this (from its "
-             "measurement's instant) is dropped, and the one in force decays to zero, s.", 1e-3, 100.0),
-        Spec("lockstep_timeout_s", defaults["lockstep_timeout_s"], "lockstep: wall time to wait for a command before applying zero, s.",
-             1e-3, 100.0),
     )
-
-
-def locked_during_run() -> tuple[str, ...]:
-    """Every plant parameter shapes time, the physics, the sensor or the limits: all are locked during a run."""
-    return tuple(spec.name for spec in parameters())
 
 
 def plant_from(values: dict) -> SmibParams:

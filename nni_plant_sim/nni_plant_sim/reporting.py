@@ -226,11 +226,6 @@ class _Loop:
         """A fault moved the state (at the current time)."""
         self.state = state
 
-    def summary(self) -> dict:
-        """Simulated time, samples and the power in force (channel 0's counters and timing), for diagnostics."""
-        return {"sim_time_s": self.t_s, "samples": self.sample, "battery_power_pu": self.channels[0].power_pu,
-                **self.channels[0].summary()}
-
     def report(self, stamp_ns: int) -> Report:
         return Report(stamp_ns, self.t_s, self.state, self.powers)
 

@@ -147,28 +147,28 @@ def from_values(values) -> Scenario:
 class StartingAt:
     """A scenario whose fault starts at ``start_s`` on a longer time axis.
 
-    Before ``start_s`` the network has its pre-fault values; from then on it is
-    ``scenario`` shifted in time. The plant node uses it when the fault is
-    triggered by a service call at an arbitrary instant.
+    Before ``start_s`` the network is that of ``before`` (the pre-fault one: for
+    the SMIB, any :class:`InitialAngle`; for a network of generators, a scenario
+    of :mod:`nni_plant_sim.network_scenarios` with the intact network); from then
+    on it is ``scenario`` shifted in time. The plant nodes use it when the fault
+    is triggered by a service call at an arbitrary instant.
     """
 
     scenario: Scenario
     start_s: float
+    before: object = InitialAngle()
 
     def initial_state(self, plant: SmibParams) -> np.ndarray:
         """The scenario's state at its start."""
         return self.scenario.initial_state(plant)
 
     def network(self, t_s: float, plant: SmibParams) -> tuple[float, float]:
-        """Pre-fault values before ``start_s``, then the shifted scenario."""
+        """``before``'s values before ``start_s``, then the shifted scenario."""
         if t_s < self.start_s:
-            return plant.p_mech_pu, plant.p_max_pu
+            return self.before.network(t_s, plant)
         return self.scenario.network(t_s - self.start_s, plant)
 
     def breakpoints(self) -> tuple[float, ...]:
         """The start and the scenario's own breakpoints, shifted."""
         return (self.start_s, *(self.start_s + tb for tb in self.scenario.breakpoints()))
 
-
-#: Before any fault: the pre-fault network at every time.
-PRE_FAULT = StartingAt(InitialAngle(), math.inf)

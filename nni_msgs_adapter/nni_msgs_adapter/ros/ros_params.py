@@ -41,9 +41,20 @@ class Spec:
 
 
 def declare(node, specs) -> None:
-    """Declare every spec on ``node`` (overrides from YAML / command line apply)."""
+    """Declare every spec on ``node`` (overrides from YAML / command line apply).
+
+    A default ``[]`` declares an integer array that starts empty: rclpy would type ``[]`` as a
+    byte array (refusing ``-p name:=[2]``), and a params file's ``[]`` arrives unset.
+    """
+    from rclpy.parameter import Parameter  # here, not at import: the parameter tables stay free of rclpy
+
     for spec in specs:
-        node.declare_parameter(spec.name, spec.default, spec.descriptor())
+        if spec.default != []:
+            node.declare_parameter(spec.name, spec.default, spec.descriptor())
+            continue
+        node.declare_parameter(spec.name, Parameter.Type.INTEGER_ARRAY, spec.descriptor())
+        if node.get_parameter_or(spec.name).type_ == Parameter.Type.NOT_SET:
+            node.set_parameters([Parameter(spec.name, Parameter.Type.INTEGER_ARRAY, [])])
 
 
 def current_values(node, specs) -> dict:

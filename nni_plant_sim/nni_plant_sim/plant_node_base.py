@@ -1,0 +1,252 @@
+"""What every plant node does in ROS: N generators, each with a CommandChannel and a PMU, behind one reporting loop.
+
+The SMIB plant (:mod:`.plant_node`) is N = 1 in the node's own namespace
+(relative topics ``pmu``, ``plant/state``, ``battery/command``); the network
+plant (:mod:`.network_plant_node`) has generator i under ``/gen<i>``. This
+class translates between ROS and the cores for both: it declares and validates
+the parameters (:func:`.plant_config.run_parameters` and the node's own),
+waits for the subscribers (:class:`.reporting.SubscriberWait`), runs the
+reporting loop (:class:`.reporting.LockstepStepper` or
+:class:`.reporting.RealtimeReporter`), publishes what it returns (per
+generator its measurement, in lockstep then ``/clock``, then the true states),
+hands each battery command and the writers on each command topic to the
+generator's :class:`.reporting.CommandChannel`, serves ``plant/start_fault``
+(the fault starts then; ``fault_at_start``: at t = 0) and publishes one
+status per generator on ``/diagnostics`` (``run_ended`` in the callback of
+the run's last sample; at exit also printed as one JSON line).
+
+A plant node sets, in :meth:`_configure_plant`: ``namespaces`` (``("",)``:
+the node's own), ``_plant`` (what :func:`.integrators.advance` integrates),
+``_fault`` and ``_before`` (the scenario and the pre-fault one, see
+:class:`.scenarios.StartingAt`) and ``_labels`` (extra status values per
+generator); and it gives :meth:`_integrate`, :meth:`_state_of` and
+:meth:`_frames`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from rclpy.node import Node
+from rclpy.task import Future
+from rosgraph_msgs.msg import Clock
+from std_srvs.srv import Trigger
+
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros.ros_params import check_choices, current_values, declare, install_validation, locked_changes
+from nni_plant_sim.reporting import CommandChannel, LockstepStepper, PmuSensor, RealtimeReporter, SubscriberWait
+from nni_plant_sim.scenarios import StartingAt
+
+
+class PlantNodeBase(Node):
+    """A plant of generators reporting like PMUs; ``summary_prefix`` starts its JSON line at exit."""
+
+    summary_prefix = ""
+
+    def __init__(self, node_name: str, specs, **kwargs):
+        super().__init__(node_name, **kwargs)
+        self._specs = specs
+        declare(self, specs)
+        values = current_values(self, specs)
+        check_choices(values, specs)
+        self._loop = None  # the reporting core, from the start of the run
+        self._configure(values)
+        install_validation(self, specs, self._validate, self._install)
+        self._lockstep, self.done = values["mode"] == "lockstep", Future()
+        self._scenario = StartingAt(self._fault, math.inf, self._before)  # pre-fault until the fault starts
+        self._wait = SubscriberWait(values["wait_for_subscribers"], values["discovery_settle_s"],
+                                    values["wait_timeout_s"], self._now_ns())
+        self._t0_ns, self._finished_ns, self._gave_up = None, None, False
+        self._writer_counts = [-1] * len(self.namespaces)
+        self._pmu_pubs = [self.create_publisher(*self._endpoint(ns, contract.TOPIC_PMU)) for ns in self.namespaces]
+        self._state_pubs = [self.create_publisher(*self._endpoint(ns, contract.TOPIC_PLANT_STATE)) for ns in self.namespaces]
+        self._diag_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_DIAGNOSTICS))
+        self._clock_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_CLOCK)) if self._lockstep else None
+        self._command_subs = [self._subscribe(i, ns) for i, ns in enumerate(self.namespaces)]
+        self.create_service(Trigger, contract.SERVICE_START_FAULT, self._on_start_fault)
+        # Warm the sample path once, publishing nothing. Profiled: the first pass costs ~5 ms (first
+        # JointState construction, numpy's first calls), which sample 0 would otherwise pay as latency.
+        self._integrate(0.0, 1.0 / values["pmu_rate_hz"], self._state_of(self._fault), (0.0,) * len(self.namespaces))
+        contract.pmu_message(0, 0.0, 0.0, 0.0)
+        self._start_timer = self.create_timer(0.01, self._try_start)
+        self._run_timers = [self.create_timer(1.0, self._publish_diagnostics)]
+
+    @staticmethod
+    def _endpoint(namespace: str, topic: str) -> tuple:
+        """``(message class, topic, QoS)`` of a contract topic in a generator's namespace (``""``: the node's own)."""
+        msg_class, name, qos = contract.endpoint(topic)
+        return msg_class, (f"/{namespace}/{name}" if namespace else name), qos
+
+    def _subscribe(self, index: int, namespace: str):
+        msg_class, name, qos = self._endpoint(namespace, contract.TOPIC_BATTERY_COMMAND)
+        return self.create_subscription(msg_class, name, lambda msg: self._on_command(index, msg), qos)
+
+    def _now_ns(self) -> int:
+        return self.get_clock().now().nanoseconds
+
+    # --- parameters ----------------------------------------------------------------------
+
+    def _configure(self, values: dict) -> None:
+        self._values = values
+        self._configure_plant(values)
+        self._channels = [CommandChannel(values["battery_rating_pu"], round(values["command_timeout_s"] * 1e9))
+                          for _ in self.namespaces]
+        self._sensors = [PmuSensor(values["noise_angle_std_rad"], values["noise_speed_std_rad_s"],
+                                   values["quantisation_rad"], values["noise_seed"] + i) for i in range(len(self.namespaces))]
+
+    def _validate(self, values: dict) -> dict:
+        if self._loop is not None:
+            locked_changes(self._values, values, [spec.name for spec in self._specs])
+        locked_changes(self._values, values, *self._locked_at_start())
+        self._check(values)
+        return values
+
+    def _install(self, values: dict) -> None:
+        if values != self._values:  # a change before the run (during it every parameter is locked)
+            self._configure(values)
+
+    # --- start ---------------------------------------------------------------------------
+
+    def _try_start(self) -> None:
+        readers = [pub.get_subscription_count() for pub in self._pmu_pubs]
+        writers = [sub.get_publisher_count() for sub in self._command_subs]
+        fewest, silent = readers.index(min(readers)), writers.index(min(writers))
+        state, level, text = self._wait.poll(self._now_ns(), readers[fewest], writers[silent],
+                                             self._pmu_pubs[fewest].topic_name, self._command_subs[silent].topic_name)
+        if text is not None:
+            contract.log_at(self.get_logger(), level, text)
+        self._gave_up = state == "give_up"
+        if state != "start":
+            return self.done.set_result(True) if self._gave_up else None
+        self._start_timer.cancel()
+        values = self._values
+        # Logged before sample 0: rclpy's first log call is slow (caller lookup); after it, sample 0 took 17-19 ms.
+        self.get_logger().info(f"started in {values['mode']} mode at {values['pmu_rate_hz']:g} frames/s"
+                               + (f", {len(self.namespaces)} generators" if self.namespaces != ("",) else ""))
+        self._check_writers()
+        timer = self.create_timer(min(0.05, values["lockstep_timeout_s"] / 4) if self._lockstep
+                                  else 1.0 / values["pmu_rate_hz"], self._on_timer)
+        self._run_timers.append(timer)
+        # Realtime, the reporting grid is the timer's own, its period in whole ns and its phase, so that a
+        # tick never comes before its instant and the two never drift apart (60 frames/s: 16,666,666 ns).
+        self._t0_ns = self._now_ns() + (0 if self._lockstep else timer.time_until_next_call() - timer.timer_period_ns)
+        state = self._state_of(self._before)
+        self._loop = (LockstepStepper(self._integrate, state, self._channels, values["duration_s"],
+                                      1.0 / values["pmu_rate_hz"], values["lockstep_timeout_s"]) if self._lockstep
+                      else RealtimeReporter(self._integrate, state, self._channels, values["duration_s"],
+                                            self._t0_ns, timer.timer_period_ns, values["command_timeout_s"]))
+        if values["fault_at_start"]:
+            self._start_fault_now()
+        self._publish(self._loop.start(self._now_ns()))
+
+    def _start_fault_now(self) -> None:
+        self._scenario = StartingAt(self._fault, self._loop.t_s, self._before)
+        self._loop.replace_state(self._state_of(self._fault))
+
+    def _on_start_fault(self, request, response):
+        response.success = self._loop is not None and self._scenario.start_s == math.inf
+        if response.success:
+            self._publish(self._loop.interrupt(self._now_ns()))
+            self._start_fault_now()
+        response.message = (f"fault started at t = {self._loop.t_s:.6f} s" if response.success else
+                            "the run has not started (waiting for subscribers)" if self._loop is None else
+                            "the fault has already started")
+        return response
+
+    # --- publishing ----------------------------------------------------------------------
+
+    def _publish(self, output) -> None:
+        """What the core says to publish: the measurements (lockstep: then /clock) first, then true states."""
+        if output is None:
+            return
+        sample = output.measurement
+        if sample is not None:
+            for pub, frame in zip(self._pmu_pubs, self._frames(sample)):
+                pub.publish(contract.pmu_message(sample.stamp_ns, *frame))
+            if self._lockstep:  # /clock after the measurement: the controller answers before it reads the clock
+                self._loop.sent(self._now_ns())
+                self._clock_pub.publish(Clock(clock=contract.time_from_ns(sample.stamp_ns)))
+        for report in output.states:
+            deltas, speeds = report.state.reshape(2, -1).tolist()
+            for pub, delta, speed, power in zip(self._state_pubs, deltas, speeds, report.powers):
+                pub.publish(contract.plant_state_message(report.stamp_ns, delta, speed, power))
+        if output.done:
+            for timer in self._run_timers:
+                timer.cancel()
+            self._finished_ns = self._now_ns()
+            self._publish_diagnostics()
+            self.done.set_result(True)
+
+    # --- timers and commands -------------------------------------------------------------
+
+    def _on_timer(self) -> None:
+        """Realtime: the reporting tick; lockstep: the watchdog of the handshake (zero for the silent at the timeout)."""
+        self._check_writers()
+        self._publish(self._loop.on_timer(self._now_ns()))
+
+    def _check_writers(self) -> None:
+        """Tell each channel who writes on its battery/command when that changed (alarms go out at once)."""
+        for i, (sub, channel) in enumerate(zip(self._command_subs, self._channels)):
+            count = sub.get_publisher_count()
+            if count == self._writer_counts[i] and channel.paired is not None:
+                continue
+            writers, unlisted = contract.writers_on(self, sub.topic_name, count)
+            self._writer_counts[i] = -1 if unlisted or contract.UNNAMED_WRITER in writers.values() else count
+            channel.writers(writers, unlisted)
+        self._report_events()
+
+    def _report_events(self) -> None:
+        """Pairings on the log; alarms on the log at ERROR and in diagnostics at once."""
+        for ns, channel in zip(self.namespaces, self._channels):
+            for alarm, text in channel.take_events():
+                contract.log_at(self.get_logger(), "error" if alarm else "info", f"/{ns}: {text}" if ns else text)
+                if alarm:
+                    self._publish_diagnostics()
+
+    def _on_command(self, index: int, msg) -> None:
+        arrival_ns = self._now_ns()
+        if self._loop is None:
+            return
+        self._check_writers()
+        try:
+            stamp_ns, power = contract.command_from_message(msg)
+        except contract.ContractError:
+            stamp_ns, power = 0, math.nan  # malformed: invalid, as a non-finite power is
+        self._publish(self._loop.command(index, stamp_ns, power, arrival_ns)[1])
+        self._report_events()
+
+    # --- diagnostics ---------------------------------------------------------------------
+
+    def _generator_values(self) -> list[dict]:
+        """Per generator: the run's simulated and wall time and samples, its channel's counters, the power in force."""
+        run = {"mode": self._values["mode"], "sim_time_s": 0.0, "samples": 0, "run_wall_s": 0.0}
+        if self._loop is not None:
+            run.update(sim_time_s=self._loop.t_s, samples=self._loop.sample,
+                       run_wall_s=((self._finished_ns or self._now_ns()) - self._t0_ns) * 1e-9)
+        return [{**run, **label, "battery_power_pu": channel.power_pu, **channel.summary(),
+                 contract.RUN_ENDED: self._finished_ns is not None} for label, channel in zip(self._labels, self._channels)]
+
+    def _publish_diagnostics(self) -> list[dict]:
+        """One status per generator (``plant``, namespaced by its hardware_id); returns their values."""
+        generators = self._generator_values()
+        for ns, channel, values in zip(self.namespaces, self._channels, generators):
+            level, message = channel.health(self._loop is not None, self._wait.text)
+            self._diag_pub.publish(contract.diagnostics_message(
+                self._now_ns(), "plant", f"/{ns}/plant" if ns else self.get_fully_qualified_name(),
+                getattr(DiagnosticStatus, level), message, values))
+        return generators
+
+    def close(self) -> None:
+        """Final diagnostics before the node goes (SIGINT/SIGTERM or end of run), also printed as one JSON line.
+
+        The line holds the one generator's values in the node's own namespace, else ``{namespace: values}``.
+        """
+        if self._loop is not None and self._finished_ns is None:
+            self._finished_ns = self._now_ns()  # stopped: the run ends here, and its status says so
+        generators = self._publish_diagnostics()
+        print(self.summary_prefix + json.dumps(generators[0] if self.namespaces == ("",) else
+                                               dict(zip(self.namespaces, generators))), flush=True)
+        if self._gave_up:
+            raise SystemExit(1)  # nobody to run with (node_main returns 0 after a node's normal end)
