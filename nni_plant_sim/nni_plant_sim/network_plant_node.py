@@ -40,6 +40,7 @@ from nni_plant_sim.cases import CASES, load_network
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.network import electrical_power
 from nni_plant_sim.network_scenarios import BusFault, LineTrip
+from nni_plant_sim.plant_config import link_from, link_parameters
 from nni_plant_sim.reporting import CommandChannel, LockstepStepper, RealtimeReporter, SubscriberWait
 
 #: Prefix of the JSON line with every generator's final diagnostics values, printed at exit.
@@ -68,6 +69,7 @@ PARAMETERS = (
          "battery/command a publisher.", 1, 100),
     Spec("wait_timeout_s", 60.0, "Give up (error, non-zero exit) after waiting this long for them, s.", 0.1, 1e6),
     Spec("discovery_settle_s", 0.5, "Once they are there, wait this long for the rest of discovery, s.", 0.0, 10.0),
+    *link_parameters({"link_delay_s": 0.0, "link_jitter_s": 0.0, "link_loss": 0.0, "link_seed": 0}),  # every generator
 )
 
 
@@ -175,9 +177,9 @@ class NetworkPlantNode(Node):
         # Realtime, the reporting grid is the timer's own (its whole-ns period and phase), as in the SMIB plant.
         self._t0_ns = self._now_ns() + (0 if self._lockstep else timer.time_until_next_call() - timer.timer_period_ns)
         self._loop = (LockstepStepper(self._integrate, state, self._channels, values["duration_s"], self._period_s,
-                                      values["lockstep_timeout_s"]) if self._lockstep
+                                      values["lockstep_timeout_s"], link_from(values)) if self._lockstep
                       else RealtimeReporter(self._integrate, state, self._channels, values["duration_s"], self._t0_ns,
-                                            timer.timer_period_ns, values["command_timeout_s"]))
+                                            timer.timer_period_ns, values["command_timeout_s"], link_from(values)))
         self._publish(self._loop.start(self._now_ns()))
 
     # --- publishing ----------------------------------------------------------------------

@@ -11,6 +11,7 @@ import math
 
 from nni_msgs_adapter.ros.defaults import plant_defaults
 from nni_msgs_adapter.ros.ros_params import Spec
+from nni_plant_sim.link import Link
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.scenarios import SCENARIOS
 
@@ -55,7 +56,25 @@ def parameters() -> tuple[Spec, ...]:
              "measurement's instant) is dropped, and the one in force decays to zero, s.", 1e-3, 100.0),
         Spec("lockstep_timeout_s", defaults["lockstep_timeout_s"], "lockstep: wall time to wait for a command before applying zero, s.",
              1e-3, 100.0),
+        *link_parameters(defaults),
     )
+
+
+def link_parameters(defaults: dict) -> tuple[Spec, ...]:
+    """The communication link's parameters (:mod:`nni_plant_sim.link`), the same names at the SMIB and network plant."""
+    return (
+        Spec("link_delay_s", defaults["link_delay_s"], "Link: fixed delay from a measurement's instant to its answer "
+             "taking effect, s (lockstep: simulated time; realtime: on the reporting grid).", 0.0, 10.0),
+        Spec("link_jitter_s", defaults["link_jitter_s"], "Link: extra delay drawn uniform in [0, this), s.", 0.0, 10.0),
+        Spec("link_loss", defaults["link_loss"], "Link: probability that an answer is lost (the command in force "
+             "stays).", 0.0, 1.0),
+        Spec("link_seed", defaults["link_seed"], "Link: seed of the jitter and loss draws.", 0, 2**31 - 1),
+    )
+
+
+def link_from(values: dict) -> Link:
+    """The Link of the parameter values."""
+    return Link(values["link_delay_s"], values["link_jitter_s"], values["link_loss"], values["link_seed"])
 
 
 def locked_during_run() -> tuple[str, ...]:

@@ -23,7 +23,7 @@ from nni_msgs_adapter.ros.node_main import run_node
 from nni_msgs_adapter.ros.ros_params import check_choices, current_values, declare, install_validation, locked_changes
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.model import electrical_power, invariant_set_boundary
-from nni_plant_sim.plant_config import locked_during_run, parameters, plant_from
+from nni_plant_sim.plant_config import link_from, locked_during_run, parameters, plant_from
 from nni_plant_sim.scenarios import from_values
 from nni_plant_sim.reporting import CommandChannel, LockstepStepper, PmuSensor, RealtimeReporter, SubscriberWait
 from nni_plant_sim.scenarios import PRE_FAULT, StartingAt
@@ -69,7 +69,7 @@ class PlantNode(Node):
         if self._loop is not None:
             locked_changes(self._values, values, locked_during_run())
         locked_changes(self._values, values, ("mode",), "once the node is up (it chose its publishers)")
-        plant_from(values), from_values(values)
+        plant_from(values), from_values(values), link_from(values)
         return values
 
     def _configure(self, values: dict) -> None:
@@ -104,9 +104,11 @@ class PlantNode(Node):
         # tick never comes before its instant and the two never drift apart (60 frames/s: 16,666,666 ns).
         self._t0_ns = self._now_ns() + (0 if self._lockstep else timer.time_until_next_call() - timer.timer_period_ns)
         self._loop = (LockstepStepper(self._integrate, state, [self._channel], values["duration_s"],
-                                      1.0 / values["pmu_rate_hz"], values["lockstep_timeout_s"]) if self._lockstep
+                                      1.0 / values["pmu_rate_hz"], values["lockstep_timeout_s"], link_from(values))
+                      if self._lockstep
                       else RealtimeReporter(self._integrate, state, [self._channel], values["duration_s"],
-                                            self._t0_ns, timer.timer_period_ns, values["command_timeout_s"]))
+                                            self._t0_ns, timer.timer_period_ns, values["command_timeout_s"],
+                                            link_from(values)))
         if values["fault_at_start"]:
             self._start_fault_now()
         self._publish(self._loop.start(self._now_ns()))
