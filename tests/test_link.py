@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from nni_battery_controller.law import ControllerParams, SampledController
-from nni_battery_controller.simulate import delay_margin, simulate_sampled
+from nni_battery_controller.simulate import delay_margins, simulate_sampled
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.link import NO_LINK, DelayLine, Link
 from nni_plant_sim.model import SmibParams
@@ -176,16 +176,18 @@ def test_offline_sampled_with_a_one_period_delay_applies_each_command_one_period
     np.testing.assert_allclose(traj.delta_rad, expected, rtol=0, atol=1e-12)
 
 
-def test_the_delay_margin_bisects_between_the_last_delay_in_sync_and_the_first_slip():
+def test_the_delay_margin_scans_all_limits_together_then_bisects_each():
     tried = []
+    first_loss = {0: 0.1234, 1: None, 2: 0.0}  # limit index -> first delay that slips (None: never)
 
-    def in_sync(delay):
-        tried.append(delay)
-        return delay < 0.1234
+    def in_sync(delay, indices):
+        tried.append((delay, tuple(indices)))
+        return [first_loss[i] is None or delay < first_loss[i] for i in indices]
 
-    margin = delay_margin(in_sync, 0.3, 0.05, 1.0, 1e-3)
-    assert margin.margin_s < 0.1234 <= margin.slips_s and margin.slips_s - margin.margin_s <= 1e-3
-    assert tried[:4] == [0.0, 0.05, 0.1, 0.15] and margin.runs == len(tried)
-    assert delay_margin(lambda d: True, 0.3, 0.25, 1.0).slips_s is None, "no slip up to the end: no margin claimed"
-    assert "no margin found up to 1 s" in delay_margin(lambda d: True, 0.3, 0.25, 1.0).text()
-    assert delay_margin(lambda d: False, 0.0, 0.25, 1.0).margin_s is None
+    found = delay_margins(in_sync, [0.3, math.inf, 0.0], 0.05, 0.5, 1e-3)
+    assert found[0].margin_s < 0.1234 <= found[0].slips_s and found[0].slips_s - found[0].margin_s <= 1e-3
+    assert tried[:4] == [(0.0, (0, 1, 2)), (0.05, (0, 1)), (0.1, (0, 1)), (0.15, (0, 1))], "one batch per delay"
+    assert found[0].runs == sum(0 in indices for _, indices in tried)
+    assert found[1].slips_s is None and found[1].to_json()["delay_margin_s"] is None, "no slip: no margin claimed"
+    assert found[1].text() == "no margin found up to 0.5 s (in synchronism at every delay tried)"
+    assert found[2].margin_s is None and found[2].runs == 1 and found[2].text().startswith("none")

@@ -34,7 +34,8 @@ from nni_battery_controller.simulate import (
     SETTLE_BAND_RAD,
     assess,
     critical_clearing_time,
-    delay_margin,
+    DELAY_SCAN_STEP_S,
+    delay_margins,
     equal_area_clearing_time_s,
     fastest_rate_per_s,
     simulate_continuous,
@@ -120,11 +121,13 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--delay-margin", action="store_true",
                         help="instead of one run per b: the largest fixed measurement-to-command delay (the link's) "
                              "that keeps the sampled-data loop in synchronism over --duration, per b; a scan in "
-                             "steps of one controller period up to --delay-max, then bisection to "
+                             "steps of --delay-step up to --delay-max, then bisection to "
                              f"{DELAY_MARGIN_TOLERANCE_S * 1e3:g} ms; printed and in --json (controller rate: "
                              "--controller-rate, default the plant node's pmu_rate_hz)")
     parser.add_argument("--delay-max", type=float_within(1e-3, 10.0, "s"), metavar="S",
                         help=f"--delay-margin: longest delay tried, s (default {DEFAULT_DELAY_MAX_S:g})")
+    parser.add_argument("--delay-step", type=float_within(1e-3, 10.0, "s"), metavar="S",
+                        help=f"--delay-margin: step of the scan before the bisection, s (default {DELAY_SCAN_STEP_S:g})")
     parser.add_argument("--roa", type=writable_output, metavar="PREFIX",
                         help="instead of the time-domain run: region of attraction of each b on a grid of initial "
                              "conditions, written to PREFIX.png (basins, Omega, EAC) and PREFIX.json (basin areas); "
@@ -499,36 +502,46 @@ def run_delay_margin(args, model, plant: SmibParams) -> int:
     """``--delay-margin``: per b, the largest fixed link delay in synchronism; table, and JSON with delay_margin_s."""
     scenario, rate, link = model.scenario(), args.controller_rate, link_of(args)
     ctrls = [model.controller_params(b) for b in args.b]
-    scan_s = round(1.0 / rate, 9)
+    scan_s = args.delay_step
     runs = math.ceil(args.delay_max / scan_s) + math.ceil(math.log2(max(scan_s / DELAY_MARGIN_TOLERANCE_S, 1))) + 1
     check_work(plant, ctrls, args.duration, rate, runs_per_b=runs)
     print(f"Delay margin, SMIB, {model.header()}")
     print(f"controller sampled at {rate:g} Hz: the longest fixed delay from a measurement to its command taking "
           f"effect that keeps the rotor angle within +-180 degrees (in synchronism) over {args.duration:g} s")
-    print(f"scan from 0 in steps of one period ({scan_s * 1e3:g} ms) up to {args.delay_max:g} s until a run slips, "
-          f"then bisection to {DELAY_MARGIN_TOLERANCE_S * 1e3:g} ms")
+    print(delay_search_text(scan_s, args.delay_max))
     if link.active:
         print(f"on top of the delay: {link.describe()}")
     print(f"{'b (pu)':>7} {'margin (ms)':>12} {'slips at (ms)':>14} {'runs':>5}  result")
-    results = []
-    for ctrl in ctrls:
-        def in_sync(delay_s, ctrl=ctrl):
-            return assess(simulate(plant, ctrl, scenario, args.duration, rate, link.with_delay(delay_s))).in_synchronism
+    def in_sync(delay_s, indices):
+        return [assess(simulate(plant, ctrls[i], scenario, args.duration, rate, link.with_delay(delay_s)))
+                .in_synchronism for i in indices]
 
-        result = delay_margin(in_sync, ctrl.battery_limit_pu, scan_s, args.delay_max)
-        results.append(result)
-        margin = "-" if result.margin_s is None or result.slips_s is None else f"{result.margin_s * 1e3:.1f}"
-        slips = "-" if result.slips_s is None else f"{result.slips_s * 1e3:.1f}"
-        print(f"{result.b:>7g} {margin:>12} {slips:>14} {result.runs:>5}  {result.text()}", flush=True)
+    results = delay_margins(in_sync, [ctrl.battery_limit_pu for ctrl in ctrls], scan_s, args.delay_max)
+    for result in results:
+        print(delay_margin_row(result))
     if args.json:
         with atomic_output(args.json) as handle:
             json.dump({"delay_margin": [r.to_json() for r in results], "tolerance_s": DELAY_MARGIN_TOLERANCE_S,
-                       "scan_step_s": scan_s, "duration_s": args.duration, "controller": controller_text(rate),
+                       "scan_step_s": scan_s, "searched_up_to_s": args.delay_max, "duration_s": args.duration, "controller": controller_text(rate),
                        "scenario": model.scenario_values(), "criterion": "in synchronism: the rotor angle never "
                        "passed +-180 degrees", "link": link.to_json() | {"delay_s": "searched"}}, handle, indent=2)
             handle.write("\n")
         print(f"wrote {args.json}")
     return 0
+
+
+def delay_search_text(scan_s: float, upper_s: float) -> str:
+    """How the delay margin was searched, for the lines above its table."""
+    return (f"scan from 0 in steps of {scan_s * 1e3:g} ms (--delay-step) up to {upper_s:g} s (--delay-max) until a "
+            f"run slips, then bisection to {DELAY_MARGIN_TOLERANCE_S * 1e3:g} ms; the margin is the first loss "
+            f"(a longer delay may be in synchronism again)")
+
+
+def delay_margin_row(result, prefix: str = "") -> str:
+    """One row of the delay margin table (``prefix``: columns before b)."""
+    margin = "-" if result.margin_s is None or result.slips_s is None else f"{result.margin_s * 1e3:.1f}"
+    slips = "-" if result.slips_s is None else f"{result.slips_s * 1e3:.1f}"
+    return f"{prefix}{result.b:>7g} {margin:>12} {slips:>14} {result.runs:>5}  {result.text()}"
 
 
 def resolve_link_options(args) -> None:
@@ -545,9 +558,13 @@ def resolve_link_options(args) -> None:
         if args.controller_rate is None:
             args.controller_rate = plant_defaults()["pmu_rate_hz"]
         args.delay_max = DEFAULT_DELAY_MAX_S if args.delay_max is None else args.delay_max
+        args.delay_step = DELAY_SCAN_STEP_S if args.delay_step is None else args.delay_step
+        if args.delay_step > args.delay_max:
+            raise CliError(f"--delay-step {args.delay_step:g} s is longer than --delay-max {args.delay_max:g} s")
         return
-    if args.delay_max is not None:
-        raise CliError("--delay-max applies to --delay-margin only")
+    for flag in ("delay_max", "delay_step"):
+        if getattr(args, flag) is not None:
+            raise CliError(f"--{flag.replace('_', '-')} applies to --delay-margin only")
     if continuous_given:
         args.controller_rate = None
     given = given_link_options(args)

@@ -281,7 +281,7 @@ def assess_network(traj: NetworkTrajectory, settle_band_rad: float = SETTLE_BAND
 
 def critical_clearing_times(net: Network, law: NetworkLaw, make_fault, limits_pu_mbase, duration_s: float,
                             rate_hz: float, high_s: float = 1.0, resolution_s: float = 1e-3, points: int = 31,
-                            max_step_s: float = 1e-3):
+                            max_step_s: float = 1e-3, link: Link = NO_LINK):
     """Critical clearing time per battery limit: the longest clearing time (on a ``resolution_s`` grid) that stays in synchronism.
 
     ``make_fault(clearing_times)`` builds the fault for an array of clearing
@@ -292,7 +292,7 @@ def critical_clearing_times(net: Network, law: NetworkLaw, make_fault, limits_pu
     one found is ignored (stability need not be monotone in the clearing time:
     with batteries it sometimes is not). Between candidates monotonicity is
     assumed, as any bisection does: a finer search (``points``) can find an
-    earlier loss.
+    earlier loss. ``link``: every run through it (:func:`simulate_network`).
     Returns per limit ``(cct_s or None, (stable_s, unstable_s), at_limit)``:
     ``None`` when even the shortest clearing time loses synchronism;
     ``at_limit`` when ``high_s`` still holds (the CCT is then at least high_s).
@@ -310,7 +310,7 @@ def critical_clearing_times(net: Network, law: NetworkLaw, make_fault, limits_pu
                 owners.extend([j] * grid.size)
         candidates, owners = np.array(candidates), np.array(owners)
         traj = simulate_network(net, law, make_fault(candidates * step), [limits_pu_mbase[j] for j in owners],
-                                duration_s, rate_hz, max_step_s, drop_lost_runs=True)
+                                duration_s, rate_hz, max_step_s, drop_lost_runs=True, link=link)
         stable = ~np.any(angle_spread(traj.delta_rad) > POLE_SLIP_RAD, axis=0)
         for j in np.unique(owners):
             mine = owners == j

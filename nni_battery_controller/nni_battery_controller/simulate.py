@@ -13,7 +13,7 @@ Two time models of the same loop:
   (:mod:`nni_plant_sim.link`: each command takes effect at t_k + d_k or is lost),
   as the plant's reporting core applies it.
 
-:func:`delay_margin` finds the largest fixed measurement-to-command delay
+:func:`delay_margins` finds the largest fixed measurement-to-command delay
 that keeps a run in synchronism.
 
 Pure numpy/scipy: no ROS import.
@@ -560,7 +560,8 @@ class DelayMargin:
     (``slips_s - margin_s`` <= the tolerance). ``margin_s`` None: the run slips
     even without delay (no margin at all). ``slips_s`` None: no delay tried up
     to ``upper_s`` slipped ("no margin found up to upper_s"; ``margin_s`` is
-    then the last delay tried, a lower bound, not the margin).
+    then the last delay tried, a lower bound, not the margin, and the JSON's
+    ``delay_margin_s`` is null).
     """
 
     b: float
@@ -571,9 +572,10 @@ class DelayMargin:
 
     def to_json(self) -> dict:
         """JSON-ready dict; b = inf is written as the string "inf"."""
-        return {"b": "inf" if math.isinf(self.b) else self.b, "delay_margin_s": self.margin_s,
-                "bracket_s": [self.margin_s, self.slips_s], "slip_found": self.slips_s is not None,
-                "searched_up_to_s": self.upper_s, "runs": self.runs}
+        found = self.slips_s is not None
+        return {"b": "inf" if math.isinf(self.b) else self.b, "delay_margin_s": self.margin_s if found else None,
+                "bracket_s": [self.margin_s, self.slips_s], "slip_found": found,
+                "in_synchronism_up_to_s": self.margin_s, "searched_up_to_s": self.upper_s, "runs": self.runs}
 
     def text(self) -> str:
         """The table cell: the margin, or what the search found instead."""
@@ -584,37 +586,42 @@ class DelayMargin:
         return f"{self.margin_s * 1e3:.1f} ms (slips at {self.slips_s * 1e3:.1f} ms)"
 
 
-def delay_margin(in_sync, b: float, scan_step_s: float, upper_s: float,
-                 tolerance_s: float = DELAY_MARGIN_TOLERANCE_S) -> DelayMargin:
-    """The first loss of synchronism as the delay grows: scan, then bisect.
+#: Step of the delay margin's scan when not given, s.
+DELAY_SCAN_STEP_S = 0.05
 
-    ``in_sync(d)`` runs the loop with a fixed delay of ``d`` s and says whether
-    it stayed in synchronism. Delay 0 first (a run that slips there has no
-    margin), then d = j ``scan_step_s`` for j = 1, 2, ... up to ``upper_s``
-    until a run slips, then bisection of [last in sync, first slip] to
-    ``tolerance_s``. As for any such search, synchronism is assumed monotone
-    between the delays tried (a finer scan can find an earlier loss). Delays
-    rounded to 1 ns.
+
+def delay_margins(in_sync, limits, scan_step_s: float, upper_s: float,
+                  tolerance_s: float = DELAY_MARGIN_TOLERANCE_S) -> list[DelayMargin]:
+    """The first loss of synchronism as the delay grows, per battery limit: scan, then bisect.
+
+    ``in_sync(delay_s, indices)`` runs the loop with a fixed delay of
+    ``delay_s`` s for the limits ``limits[i]``, i in ``indices`` (one batch),
+    and says for each whether it stayed in synchronism. Delay 0 first (a run
+    that slips there has no margin), then d = j ``scan_step_s`` for j = 1, 2,
+    ... up to ``upper_s`` until each limit's run slips, then bisection of
+    [last in sync, first slip] to ``tolerance_s``. As for any such search,
+    synchronism is assumed monotone between the delays tried (it need not be:
+    a finer scan can find an earlier loss). Delays rounded to 1 ns.
     """
-    runs = 1
-    if not in_sync(0.0):
-        return DelayMargin(b, None, 0.0, upper_s, runs)
-    low, high, j = 0.0, None, 1
-    while high is None and j * scan_step_s <= upper_s + 1e-12:
-        delay = round(j * scan_step_s, INSTANT_DECIMALS)
-        runs += 1
-        if in_sync(delay):
-            low = delay
-        else:
-            high = delay
+    n = len(limits)
+    runs = [1] * n
+    at_zero = list(in_sync(0.0, list(range(n))))
+    low, high = [0.0] * n, [None if ok else 0.0 for ok in at_zero]
+    j = 1
+    while (delay := round(j * scan_step_s, INSTANT_DECIMALS)) <= upper_s + 1e-12:
+        undecided = [i for i in range(n) if high[i] is None]
+        if not undecided:
+            break
+        for i, ok in zip(undecided, in_sync(delay, undecided)):
+            runs[i] += 1
+            low[i], high[i] = (delay, None) if ok else (low[i], delay)
         j += 1
-    if high is None:
-        return DelayMargin(b, low, None, upper_s, runs)
-    while high - low > tolerance_s:
-        mid = round(0.5 * (low + high), INSTANT_DECIMALS)
-        runs += 1
-        low, high = (mid, high) if in_sync(mid) else (low, mid)
-    return DelayMargin(b, low, high, upper_s, runs)
+    for i in range(n):
+        while at_zero[i] and high[i] is not None and high[i] - low[i] > tolerance_s:
+            mid = round(0.5 * (low[i] + high[i]), INSTANT_DECIMALS)
+            runs[i] += 1
+            low[i], high[i] = (mid, high[i]) if in_sync(mid, [i])[0] else (low[i], mid)
+    return [DelayMargin(limits[i], low[i] if at_zero[i] else None, high[i], upper_s, runs[i]) for i in range(n)]
 
 
 def equal_area_clearing_time_s(plant: SmibParams) -> float:
