@@ -1,4 +1,4 @@
-"""The link model in the distributed loop: plant and controller processes over real DDS, lockstep.
+"""The link model in the distributed loop: plant and controller processes over real DDS, lockstep (SMIB and Kundur).
 
 The plant applies each answer at t_k + d_k in simulated time (nni_plant_sim.link
 through the reporting core); the offline sampled simulation with the same link
@@ -12,12 +12,16 @@ import numpy as np
 import pytest
 
 from nni_battery_controller.law import ControllerParams
+from nni_battery_controller.network_sim import NetworkLaw, simulate_network
 from nni_battery_controller.simulate import assess, delay_margins, pole_slip_instant, simulate_sampled
 from nni_msgs_adapter.ros import contract
+from nni_plant_sim.cases import load_network
 from nni_plant_sim.link import Link
 from nni_plant_sim.model import SmibParams
+from nni_plant_sim.network_scenarios import BusFault
 from nni_plant_sim.scenarios import InitialAngle
 from test_distributed_loop import run_loop, states_array
+from test_network_loop import run_network
 
 pytestmark = pytest.mark.ros
 
@@ -81,3 +85,26 @@ def test_a_delay_the_offline_margin_calls_safe_is_safe_in_the_distributed_loop_a
         assert (slip is None) == expect_in_sync, f"delay {delay} s: distributed pole slip at {slip}"
         traj = offline(b, duration, Link(delay))
         assert_equals_offline(states, traj, until_s=slip if slip is not None else np.inf)
+
+
+def test_kundur_lockstep_through_a_link_equals_the_offline_network_simulation_with_that_link(tmp_path):
+    """Network plant + 4 controller processes, every generator's answers through its own draws of one link.
+
+    Tolerance 1e-12 as in test_network_loop (the powers' base on the wire rounds an ulp now and then).
+    """
+    net, b, duration = load_network("kundur_two_area"), 0.1, 2.0
+    link = Link(0.03, 0.02, 0.1, seed=5)
+    recorded, plant_summary = run_network(tmp_path, net, b, plant_extra={**link_params(link), "duration_s": duration})
+    law = NetworkLaw.uniform(net, 0.1, 1.0, 1.1, 1.0)
+    fault = BusFault(net, 7, 0.1, trip=(net.bus_model.branch_index(7, 8),))
+    offline = simulate_network(net, law, fault, [b], duration, RATE_HZ, link=link)
+    scale = net.mbase_mva / net.base_mva
+    for i, states in enumerate(recorded):
+        assert states.shape[0] == offline.t_s.size, f"gen{i + 1}: one plant state per sample"
+        np.testing.assert_allclose(states[:, 1], offline.delta_rad[:, i, 0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(states[:, 2], offline.speed_rad_s[:, i, 0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(states[:, 3], offline.battery_power_pu[:, i, 0] / scale[i], rtol=0, atol=1e-12)
+        lost = sum(link.draw(i, k) is None for k in range(int(duration * RATE_HZ)))
+        assert plant_summary[f"gen{i + 1}"]["deadline_misses"] == 0
+        assert plant_summary[f"gen{i + 1}"]["link_lost"] == lost, f"gen{i + 1}: its own draws"
+    assert len({plant_summary[f"gen{i + 1}"]["link_lost"] for i in range(net.size)}) > 1, "generators draw apart"

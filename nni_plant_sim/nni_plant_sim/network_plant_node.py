@@ -255,8 +255,9 @@ class NetworkPlantNode(Node):
         if self._loop is not None:
             run.update(sim_time_s=self._loop.t_s, samples=self._loop.sample,
                        run_wall_s=((self._finished_ns or self._now_ns()) - self._t0_ns) * 1e-9)
-        return [{**run, "machine": name, "battery_power_pu": channel.power_pu, **channel.summary()}
-                for name, channel in zip(self._net.names, self._channels)]
+        return [{**run, "machine": name, "battery_power_pu": channel.power_pu, **channel.summary(),
+                 **(self._loop.link_summary(i) if self._loop is not None else {})}
+                for i, (name, channel) in enumerate(zip(self._net.names, self._channels))]
 
     def _publish_diagnostics(self) -> list[dict]:
         """One status per generator, named ``gen<i>/plant``; returns their values."""

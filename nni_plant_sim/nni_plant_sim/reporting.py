@@ -243,9 +243,14 @@ class _Loop:
 
         With a link, also channel 0's answers it lost and those superseded (a later answer was in force first).
         """
-        link = {"link_lost": self.line.lost[0], "link_superseded": self.line.superseded[0]} if self.link.active else {}
         return {"sim_time_s": self.t_s, "samples": self.sample, "battery_power_pu": self.channels[0].power_pu,
-                **self.channels[0].summary(), **link}
+                **self.channels[0].summary(), **self.link_summary(0)}
+
+    def link_summary(self, index: int) -> dict:
+        """Channel ``index``'s answers the link lost and those superseded; nothing without a link."""
+        if not self.link.active:
+            return {}
+        return {"link_lost": self.line.lost[index], "link_superseded": self.line.superseded[index]}
 
     def report(self, stamp_ns: int) -> Report:
         return Report(stamp_ns, self.t_s, self.state, self.powers)
