@@ -23,8 +23,12 @@ RECORDED = (contract.TOPIC_PLANT_STATE, contract.TOPIC_CONTROLLER_STATE, contrac
             contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_DIAGNOSTICS)
 
 
-def run_loop(tmp_path, mode: str, b: float, duration_s: float, rate_hz: float = 50.0, timeout_s: float = 60.0):
-    """Run plant + controller to the end of ``duration_s``; return the probe's recordings."""
+def run_loop(tmp_path, mode: str, b: float, duration_s: float, rate_hz: float = 50.0, timeout_s: float = 60.0,
+             plant_params: dict | None = None):
+    """Run plant + controller to the end of ``duration_s``; return the probe's recordings.
+
+    ``plant_params``: more plant node parameters (the link's).
+    """
     domain = fresh_domain_id()
     probe = Probe(domain, RECORDED)
     try:
@@ -34,7 +38,7 @@ def run_loop(tmp_path, mode: str, b: float, duration_s: float, rate_hz: float = 
             # publishers: under load that came after a lockstep run had ended (0 controller states).
             assert probe.wait_for_publishers(contract.TOPIC_CONTROLLER_STATE, 1, 30.0), "no controller"
             plant = start("plant", PLANT, {"mode": mode, "duration_s": duration_s, "pmu_rate_hz": rate_hz,
-                                           "wait_for_subscribers": 2})
+                                           "wait_for_subscribers": 2, **(plant_params or {})})
             assert plant.wait(timeout=timeout_s) == 0, plant.output()
             # Reliable topics: whatever the plant sent is on its way; give the last ones time to land.
             n_states = len(probe.wait_for(contract.TOPIC_PLANT_STATE, int(duration_s * rate_hz) + 1, 5.0))

@@ -44,6 +44,7 @@ PURE_MODULES = [
     "nni_msgs_adapter.ros.processes",
     "nni_plant_sim.loop_stats",
     "nni_plant_sim.reporting",
+    "nni_plant_sim.link",
     "nni_battery_controller.input_gate",
     "nni_battery_controller.controller_core",
 ]

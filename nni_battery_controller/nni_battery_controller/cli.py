@@ -7,6 +7,11 @@ in synchronism (the rotor angle never passed +-180 degrees, a pole slip) and
 settled (|delta - delta_bar| <= 0.02 rad for at least half a swing period at
 the end); stable means both. A run out of reach (estimated from duration, rate and
 the loop's fastest rate) is refused before any work.
+
+The sampled-data runs take a communication link (--link-delay, --link-jitter,
+--link-loss, --link-seed: what the plant nodes' link_* parameters model);
+--delay-margin finds, per b, the largest fixed measurement-to-command delay
+that keeps the run in synchronism.
 """
 
 from __future__ import annotations
@@ -20,13 +25,17 @@ import time
 
 import numpy as np
 
-from nni_battery_controller.options import add_model_options, resolve_model
+from nni_battery_controller.options import add_link_options, add_model_options, given_link_options, link_of, \
+    resolve_model
 from nni_battery_controller.roa import RETURNS, STAYS, STEP_S as ROA_STEP_S, RoaGrid, report, sweep
 from nni_battery_controller.simulate import (
     CCT_TOLERANCE_S,
+    DELAY_MARGIN_TOLERANCE_S,
     SETTLE_BAND_RAD,
     assess,
     critical_clearing_time,
+    DELAY_SCAN_STEP_S,
+    delay_margins,
     equal_area_clearing_time_s,
     fastest_rate_per_s,
     simulate_continuous,
@@ -45,6 +54,7 @@ from nni_msgs_adapter.ros.cli_support import (
 )
 from nni_msgs_adapter.ros.defaults import plant_defaults
 from nni_msgs_adapter.viewing.palette import colour_hex
+from nni_plant_sim.link import NO_LINK
 from nni_plant_sim.model import SmibParams, critical_angles_rad, invariant_set_boundary, restoring_power
 from nni_plant_sim.scenarios import TransferLimitFault
 
@@ -64,11 +74,15 @@ EXIT_BROKEN_PIPE = 141
 
 
 _sampling_rate_hz = float_within(10.0, 10_000.0, "Hz or 'continuous'")
+#: --controller-rate as given for the continuous law (None once the options are resolved; None on the parser: not given).
+CONTINUOUS = "continuous"
+#: --delay-max when not given, s.
+DEFAULT_DELAY_MAX_S = 1.0
 
 
 def controller_rate(text: str):
-    """argparse type: ``continuous`` (None) or a sampling rate in Hz (10 to 10000)."""
-    return None if text == "continuous" else _sampling_rate_hz(text)
+    """argparse type: ``continuous`` or a sampling rate in Hz (10 to 10000)."""
+    return CONTINUOUS if text == CONTINUOUS else _sampling_rate_hz(text)
 
 
 #: Largest --roa grid per axis: 1000 x 1000 cells hold about 0.2 GB of state during the sweep.
@@ -104,6 +118,16 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--cct", action="store_true",
                         help="instead of one run per b: the critical clearing time of the transfer_limit_fault per b, "
                              "by bisection to 1 ms (in synchronism over --duration), printed and in --json as cct_s")
+    parser.add_argument("--delay-margin", action="store_true",
+                        help="instead of one run per b: the largest fixed measurement-to-command delay (the link's) "
+                             "that keeps the sampled-data loop in synchronism over --duration, per b; a scan in "
+                             "steps of --delay-step up to --delay-max, then bisection to "
+                             f"{DELAY_MARGIN_TOLERANCE_S * 1e3:g} ms; printed and in --json (controller rate: "
+                             "--controller-rate, default the plant node's pmu_rate_hz)")
+    parser.add_argument("--delay-max", type=float_within(1e-3, 10.0, "s"), metavar="S",
+                        help=f"--delay-margin: longest delay tried, s (default {DEFAULT_DELAY_MAX_S:g})")
+    parser.add_argument("--delay-step", type=float_within(1e-3, 10.0, "s"), metavar="S",
+                        help=f"--delay-margin: step of the scan before the bisection, s (default {DELAY_SCAN_STEP_S:g})")
     parser.add_argument("--roa", type=writable_output, metavar="PREFIX",
                         help="instead of the time-domain run: region of attraction of each b on a grid of initial "
                              "conditions, written to PREFIX.png (basins, Omega, EAC) and PREFIX.json (basin areas); "
@@ -114,6 +138,7 @@ def build_parser() -> OneLineParser:
                         help=f"--roa: initial speed deviations within +-this, rad/s (default: "
                              f"{ROA_DEFAULTS['roa_speed_max']:g}); angles within +-pi")
     add_model_options(parser)
+    add_link_options(parser)
     return parser
 
 
@@ -157,11 +182,11 @@ def plant_step_s() -> float:
     return plant_defaults()["integration_step_s"]
 
 
-def simulate(plant, ctrl, scenario, duration_s, rate_hz):
-    """One run of the continuous law or of the sampled law at ``rate_hz``."""
+def simulate(plant, ctrl, scenario, duration_s, rate_hz, link=NO_LINK):
+    """One run of the continuous law or of the sampled law at ``rate_hz`` (through ``link``)."""
     if rate_hz is None:
         return simulate_continuous(plant, ctrl, scenario, duration_s, OUTPUT_STEP_S)
-    return simulate_sampled(plant, ctrl, scenario, duration_s, rate_hz, plant_step_s())
+    return simulate_sampled(plant, ctrl, scenario, duration_s, rate_hz, plant_step_s(), link)
 
 
 def format_table(outcomes) -> str:
@@ -392,12 +417,15 @@ def run_cct(args, model, plant: SmibParams) -> int:
           f"angle within +-180 degrees over {args.duration:g} s")
     print(f"bisection to {CCT_TOLERANCE_S * 1e3:g} ms: bracket [0, {CCT_TOLERANCE_S:g}] s, upper end doubled until "
           f"a run slips (up to {args.duration:g} s), then halved")
+    if link_of(args).active:
+        print(link_of(args).describe())
     print(f"{'b (pu)':>7} {'CCT (s)':>9} {'slips at (s)':>13} {'runs':>5}")
     results = []
     for ctrl in ctrls:
         def in_sync(clearing_s, ctrl=ctrl):
             scenario = TransferLimitFault(fault_p_max, clearing_s)
-            return assess(simulate(plant, ctrl, scenario, args.duration, args.controller_rate)).in_synchronism
+            return assess(simulate(plant, ctrl, scenario, args.duration, args.controller_rate,
+                                   link_of(args))).in_synchronism
 
         result = critical_clearing_time(in_sync, ctrl.battery_limit_pu, args.duration)
         results.append(result)
@@ -413,7 +441,7 @@ def run_cct(args, model, plant: SmibParams) -> int:
             json.dump({"cct": [r.to_json() for r in results], "tolerance_s": CCT_TOLERANCE_S,
                        "duration_s": args.duration, "controller": controller_text(args.controller_rate),
                        "scenario": {"name": "transfer_limit_fault", "fault_p_max_pu": fault_p_max},
-                       "equal_area_cct_s": closed_form}, handle, indent=2)
+                       "equal_area_cct_s": closed_form, **link_json(args)}, handle, indent=2)
             handle.write("\n")
         print(f"wrote {args.json}")
     return 0
@@ -440,11 +468,14 @@ def run_time_domain(args, model, plant: SmibParams) -> int:
     scenario = model.scenario()
     ctrls = [model.controller_params(b) for b in args.b]
     check_work(plant, ctrls, args.duration, args.controller_rate)
-    trajectories = [simulate(plant, ctrl, scenario, args.duration, args.controller_rate) for ctrl in ctrls]
+    trajectories = [simulate(plant, ctrl, scenario, args.duration, args.controller_rate, link_of(args))
+                    for ctrl in ctrls]
     outcomes = [assess(traj, scenario=scenario).to_json() for traj in trajectories]
     print(f"SMIB, {model.header()}")
     print(f"controller {controller_text(args.controller_rate)}, {args.duration:g} s "
           f"(delta_bar = {plant.delta_bar_rad:.4f} rad)")
+    if link_of(args).active:
+        print(link_of(args).describe())
     print(format_table(outcomes))
     print(verdict_legend(outcomes))
     if any(o["equilibrium_moved"] for o in outcomes):
@@ -452,7 +483,7 @@ def run_time_domain(args, model, plant: SmibParams) -> int:
     if args.json:
         with atomic_output(args.json) as handle:
             json.dump({"scenario": model.scenario_values(), "controller": controller_text(args.controller_rate),
-                       "scenarios": outcomes}, handle, indent=2)
+                       "scenarios": outcomes, **link_json(args)}, handle, indent=2)
             handle.write("\n")
         print(f"wrote {args.json}")
     if args.plot:
@@ -462,8 +493,89 @@ def run_time_domain(args, model, plant: SmibParams) -> int:
     return 0
 
 
+def link_json(args) -> dict:
+    """``{"link": ...}`` for a run through a link, else nothing (the JSON of a run without one is unchanged)."""
+    return {"link": link_of(args).to_json()} if link_of(args).active else {}
+
+
+def run_delay_margin(args, model, plant: SmibParams) -> int:
+    """``--delay-margin``: per b, the largest fixed link delay in synchronism; table, and JSON with delay_margin_s."""
+    scenario, rate, link = model.scenario(), args.controller_rate, link_of(args)
+    ctrls = [model.controller_params(b) for b in args.b]
+    scan_s = args.delay_step
+    runs = math.ceil(args.delay_max / scan_s) + math.ceil(math.log2(max(scan_s / DELAY_MARGIN_TOLERANCE_S, 1))) + 1
+    check_work(plant, ctrls, args.duration, rate, runs_per_b=runs)
+    print(f"Delay margin, SMIB, {model.header()}")
+    print(f"controller sampled at {rate:g} Hz: the longest fixed delay from a measurement to its command taking "
+          f"effect that keeps the rotor angle within +-180 degrees (in synchronism) over {args.duration:g} s")
+    print(delay_search_text(scan_s, args.delay_max))
+    if link.active:
+        print(f"on top of the delay: {link.describe()}")
+    print(f"{'b (pu)':>7} {'margin (ms)':>12} {'slips at (ms)':>14} {'runs':>5}  result")
+    def in_sync(delay_s, indices):
+        return [assess(simulate(plant, ctrls[i], scenario, args.duration, rate, link.with_delay(delay_s)))
+                .in_synchronism for i in indices]
+
+    results = delay_margins(in_sync, [ctrl.battery_limit_pu for ctrl in ctrls], scan_s, args.delay_max)
+    for result in results:
+        print(delay_margin_row(result))
+    if args.json:
+        with atomic_output(args.json) as handle:
+            json.dump({"delay_margin": [r.to_json() for r in results], "tolerance_s": DELAY_MARGIN_TOLERANCE_S,
+                       "scan_step_s": scan_s, "searched_up_to_s": args.delay_max, "duration_s": args.duration, "controller": controller_text(rate),
+                       "scenario": model.scenario_values(), "criterion": "in synchronism: the rotor angle never "
+                       "passed +-180 degrees", "link": link.to_json() | {"delay_s": "searched"}}, handle, indent=2)
+            handle.write("\n")
+        print(f"wrote {args.json}")
+    return 0
+
+
+def delay_search_text(scan_s: float, upper_s: float) -> str:
+    """How the delay margin was searched, for the lines above its table."""
+    return (f"scan from 0 in steps of {scan_s * 1e3:g} ms (--delay-step) up to {upper_s:g} s (--delay-max) until a "
+            f"run slips, then bisection to {DELAY_MARGIN_TOLERANCE_S * 1e3:g} ms; the margin is the first loss "
+            f"(a longer delay may be in synchronism again)")
+
+
+def delay_margin_row(result, prefix: str = "") -> str:
+    """One row of the delay margin table (``prefix``: columns before b)."""
+    margin = "-" if result.margin_s is None or result.slips_s is None else f"{result.margin_s * 1e3:.1f}"
+    slips = "-" if result.slips_s is None else f"{result.slips_s * 1e3:.1f}"
+    return f"{prefix}{result.b:>7g} {margin:>12} {slips:>14} {result.runs:>5}  {result.text()}"
+
+
+def resolve_link_options(args) -> None:
+    """The controller rate (--delay-margin: the plant node's by default) and the link options where they apply."""
+    continuous_given = args.controller_rate == CONTINUOUS
+    if args.delay_margin:
+        for flag in ("roa", "cct", "plot", "link_delay"):
+            if getattr(args, flag):
+                raise CliError(f"--delay-margin searches the link's fixed delay and prints a table (and --json): "
+                               f"it takes no --{flag.replace('_', '-')}")
+        if continuous_given:
+            raise CliError("--delay-margin delays the commands of the sampled-data loop: it takes no "
+                           "--controller-rate continuous")
+        if args.controller_rate is None:
+            args.controller_rate = plant_defaults()["pmu_rate_hz"]
+        args.delay_max = DEFAULT_DELAY_MAX_S if args.delay_max is None else args.delay_max
+        args.delay_step = DELAY_SCAN_STEP_S if args.delay_step is None else args.delay_step
+        if args.delay_step > args.delay_max:
+            raise CliError(f"--delay-step {args.delay_step:g} s is longer than --delay-max {args.delay_max:g} s")
+        return
+    for flag in ("delay_max", "delay_step"):
+        if getattr(args, flag) is not None:
+            raise CliError(f"--{flag.replace('_', '-')} applies to --delay-margin only")
+    if continuous_given:
+        args.controller_rate = None
+    given = given_link_options(args)
+    if given and args.controller_rate is None:
+        raise CliError(f"{given[0]} applies to the sampled-data loop (its commands go over the link): give "
+                       f"--controller-rate HZ")
+
+
 def apply_mode_defaults(args) -> None:
     """Fill the defaults of --duration and the --roa options; CliError for one given where it does not apply."""
+    resolve_link_options(args)
     if args.roa:
         if args.duration is not None:
             raise CliError("--roa integrates each initial condition until decided (up to its own horizon): "
@@ -500,6 +612,8 @@ def main(argv=None) -> int:
             plant = model.smib()
             if args.roa:
                 status = run_roa(args, model, plant)
+            elif args.delay_margin:
+                status = run_delay_margin(args, model, plant)
             elif args.cct:
                 status = run_cct(args, model, plant)
             else:

@@ -5,7 +5,10 @@ or of a MATPOWER case file with its machine data, for each battery limit b
 (pu of each machine's rating, the same at every generator) and each angle
 reference, with the sampled-data H3-hat at every generator; prints one table
 per run with per-generator verdicts, writes JSON and a figure; ``--cct`` finds
-the critical clearing time of the bus fault per b instead.
+the critical clearing time of the bus fault per b instead, ``--delay-margin``
+the largest fixed measurement-to-command delay that keeps the network in
+synchronism. The runs take a communication link (``--link-*``, the same at
+every generator, the draws its own per generator).
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import time
 
 import numpy as np
 
+from nni_battery_controller.cli import DEFAULT_DELAY_MAX_S, delay_margin_row, delay_search_text
 from nni_battery_controller.network_sim import (
     ANGLE_REFERENCES,
     NetworkLaw,
@@ -23,6 +27,8 @@ from nni_battery_controller.network_sim import (
     critical_clearing_times,
     simulate_network,
 )
+from nni_battery_controller.options import add_link_options, link_of
+from nni_battery_controller.simulate import DELAY_MARGIN_TOLERANCE_S, DELAY_SCAN_STEP_S, delay_margins
 from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,
@@ -87,8 +93,17 @@ def build_parser() -> OneLineParser:
                         help="critical clearing time of the bus fault per b (bisection to 1 ms), instead of runs")
     parser.add_argument("--cct-max", type=float_within(0.002, 5.0, "s"), default=1.0,
                         help="--cct: longest clearing time tried, s (default 1)")
+    parser.add_argument("--delay-margin", action="store_true",
+                        help="the largest fixed measurement-to-command delay (the link's) that keeps the network in "
+                             "synchronism per b and reference, instead of runs: scan by --delay-step up to "
+                             f"--delay-max, then bisection to {DELAY_MARGIN_TOLERANCE_S * 1e3:g} ms")
+    parser.add_argument("--delay-max", type=float_within(1e-3, 10.0, "s"), metavar="S",
+                        help=f"--delay-margin: longest delay tried, s (default {DEFAULT_DELAY_MAX_S:g})")
+    parser.add_argument("--delay-step", type=float_within(1e-3, 10.0, "s"), metavar="S",
+                        help=f"--delay-margin: step of the scan, s (default {DELAY_SCAN_STEP_S:g})")
     parser.add_argument("--json", type=writable_output, help="write the results as JSON here")
     parser.add_argument("--plot", type=writable_output, help="write angles, frequencies, battery powers as PNG")
+    add_link_options(parser)
     return parser
 
 
@@ -102,6 +117,18 @@ def _refuse_foreign_options(args) -> None:
         raise CliError("--plot does not apply to --cct (it draws time series of runs)")
     if args.cct and args.clearing_time is not None:
         raise CliError("--clearing-time does not apply to --cct (it searches the clearing time)")
+    if args.delay_margin:
+        for flag in ("cct", "plot", "link_delay"):
+            if getattr(args, flag):
+                raise CliError(f"--delay-margin searches the link's fixed delay and prints a table (and --json): "
+                               f"it takes no --{flag.replace('_', '-')}")
+        args.delay_max = DEFAULT_DELAY_MAX_S if args.delay_max is None else args.delay_max
+        args.delay_step = DELAY_SCAN_STEP_S if args.delay_step is None else args.delay_step
+        if args.delay_step > args.delay_max:
+            raise CliError(f"--delay-step {args.delay_step:g} s is longer than --delay-max {args.delay_max:g} s")
+    for flag in ("delay_max", "delay_step"):
+        if getattr(args, flag) is not None and not args.delay_margin:
+            raise CliError(f"--{flag.replace('_', '-')} applies to --delay-margin only")
 
 
 def _machine_index(net, bus: int) -> int:
@@ -237,10 +264,34 @@ def main(argv=None) -> int:
         scenario, description, factory = make_scenario(net, args)
         laws = {ref: NetworkLaw.uniform(net, args.tau, args.gain_k, args.gain_l, args.alpha, ref)
                 for ref in args.reference}
+        link = link_of(args)
         title = f"{args.case}: {description}; controller {args.controller_rate:g} Hz"
         result = {"case": args.case, "generators": list(net.names), "mbase_mva": net.mbase_mva.tolist(),
                   "scenario": args.scenario, "description": description, "rate_hz": args.controller_rate}
-        if args.cct:
+        if link.active or args.delay_margin:
+            result["link"] = link.to_json() | ({"delay_s": "searched"} if args.delay_margin else {})
+        if args.delay_margin:
+            print(f"{args.case}: delay margin, {description}; controller {args.controller_rate:g} Hz; the longest "
+                  f"fixed delay from a measurement to its command taking effect (every generator) that keeps every "
+                  f"pair of generators within 180 degrees (in synchronism) over {args.duration:g} s")
+            print(delay_search_text(args.delay_step, args.delay_max))
+            if link.active:
+                print(f"on top of the delay: {link.describe()}")
+            print(f"  {'reference':>9} {'b (pu)':>7} {'margin (ms)':>12} {'slips at (ms)':>14} {'runs':>5}  result")
+            result.update(delay_margin=[], tolerance_s=DELAY_MARGIN_TOLERANCE_S, scan_step_s=args.delay_step,
+                          searched_up_to_s=args.delay_max, duration_s=args.duration,
+                          criterion="in synchronism: no pair of generators ever more than 180 degrees apart")
+            for ref, law in laws.items():
+                def in_sync(delay_s, indices, law=law):
+                    traj = simulate_network(net, law, scenario, [args.b[i] for i in indices], args.duration,
+                                            args.controller_rate, drop_lost_runs=True,
+                                            link=link.with_delay(delay_s))
+                    return [outcome.in_synchronism for outcome in assess_network(traj)]
+
+                for margin in delay_margins(in_sync, args.b, args.delay_step, args.delay_max):
+                    print(delay_margin_row(margin, f"  {ref:>9} "), flush=True)
+                    result["delay_margin"].append({"reference": ref, **margin.to_json()})
+        elif args.cct:
             print(f"{args.case}: critical clearing time of the {description.split(', cleared')[0]}"
                   f"{', with the trip' if args.trip_line else ''}; {args.duration:g} s runs, controller "
                   f"{args.controller_rate:g} Hz")
@@ -248,18 +299,18 @@ def main(argv=None) -> int:
             result["cct"] = []
             for ref, law in laws.items():
                 found = critical_clearing_times(net, law, factory, args.b, args.duration, args.controller_rate,
-                                                high_s=args.cct_max)
+                                                high_s=args.cct_max, link=link)
                 for b, (cct, bracket, open_top) in zip(args.b, found):
                     text = "none" if cct is None else (f">= {cct:.3f}" if open_top else f"{cct:.3f}")
                     print(f"  {b:>7g} {ref:>9} {text:>9}")
                     result["cct"].append({"b": _json_b(b), "reference": ref, "cct_s": cct,
                                           "bracket_s": list(bracket), "at_search_limit": bool(open_top)})
         else:
-            print(f"{title}, {args.duration:g} s")
+            print(f"{title}, {args.duration:g} s" + (f"; {link.describe()}" if link.active else ""))
             result["runs"] = []
             plotted = []
             for ref, law in laws.items():
-                traj = simulate_network(net, law, scenario, args.b, args.duration, args.controller_rate)
+                traj = simulate_network(net, law, scenario, args.b, args.duration, args.controller_rate, link=link)
                 for r, (b, outcome) in enumerate(zip(args.b, assess_network(traj))):
                     print(format_run(outcome, b, ref, net))
                     result["runs"].append({"b": _json_b(b), "reference": ref, **outcome.to_json()})

@@ -26,6 +26,7 @@ import numpy as np
 
 from nni_battery_controller.law import ControllerParams, sampled_step
 from nni_plant_sim.integrators import advance
+from nni_plant_sim.link import NO_LINK, DelayLine, Link, integrate_through
 from nni_plant_sim.network import Network, electrical_power
 
 ANGLE_REFERENCES = ("pmu", "coi")
@@ -139,7 +140,7 @@ class NetworkTrajectory:
 
 
 def simulate_network(net: Network, law: NetworkLaw, scenario, limits_pu_mbase, duration_s: float, rate_hz: float,
-                     max_step_s: float = 1e-3, drop_lost_runs: bool = False) -> NetworkTrajectory:
+                     max_step_s: float = 1e-3, drop_lost_runs: bool = False, link: Link = NO_LINK) -> NetworkTrajectory:
     """R runs of the sampled-data closed loop; run r has battery limits ``limits_pu_mbase[r]`` (pu machine base).
 
     ``limits_pu_mbase`` is a sequence of R entries, each one value (every
@@ -152,6 +153,12 @@ def simulate_network(net: Network, law: NetworkLaw, scenario, limits_pu_mbase, d
     ``drop_lost_runs``: a run stops at the first sample where a pair of its
     generators is more than 180 degrees apart (its later samples are NaN), so
     that a batch of candidate clearing times spends nothing on decided runs.
+
+    ``link``: generator i's answer to sample k takes effect at t_k + d_ik or is
+    lost (its command in force stays), the same draws for every run of the
+    batch; the network is integrated piecewise between those instants, as the
+    network plant's reporting core does. ``battery_power_pu`` is then the
+    power in force at each sample.
     """
     if not (math.isfinite(rate_hz) and rate_hz > 0):
         raise ValueError(f"controller rate must be finite and positive, got {rate_hz}")
@@ -167,20 +174,28 @@ def simulate_network(net: Network, law: NetworkLaw, scenario, limits_pu_mbase, d
     shape = (n + 1, net.size, runs)
     delta, speed, power, w, saturated = (np.full(shape, np.nan) for _ in range(5))
     active = np.arange(runs)
+    line = DelayLine(link, list(np.zeros((net.size, runs))))
+
+    def piece(start, stop, x, powers):
+        return advance(start, stop, x, np.array(powers), net, scenario, max_step_s)
+
     for k in range(n + 1):
         measured = electrical_power(x[0], scenario.network(t[k], net)[1])
         delta[k][:, active], speed[k][:, active] = x
         step = controller.step(x[0], measured)
-        power[k][:, active], w[k][:, active], saturated[k][:, active] = step
+        for i in range(net.size):
+            line.send(i, k, float(t[k]), step[0][i], float(t[k]))
+        power[k][:, active], w[k][:, active], saturated[k][:, active] = np.array(line.powers), step[1], step[2]
         if drop_lost_runs and np.any(lost := angle_spread(x[0][None])[0] > POLE_SLIP_RAD):
             keep = ~lost
-            active, x, step = active[keep], x[:, :, keep], tuple(a[:, keep] for a in step)
+            active, x = active[keep], x[:, :, keep]
+            line.narrow(keep)
             controller = NetworkController(law, period, controller.limits_pu[:, keep], controller.x3[:, keep])
             scenario = scenario.narrowed(keep)
             if active.size == 0:
                 break
         if k < n:
-            x = advance(t[k], t[k + 1], x, step[0], net, scenario, max_step_s)
+            x = integrate_through(line, piece, float(t[k]), float(t[k + 1]), x)
     return NetworkTrajectory(net, t, delta, speed, power, w, saturated == 1.0, limits)
 
 
@@ -266,7 +281,7 @@ def assess_network(traj: NetworkTrajectory, settle_band_rad: float = SETTLE_BAND
 
 def critical_clearing_times(net: Network, law: NetworkLaw, make_fault, limits_pu_mbase, duration_s: float,
                             rate_hz: float, high_s: float = 1.0, resolution_s: float = 1e-3, points: int = 31,
-                            max_step_s: float = 1e-3):
+                            max_step_s: float = 1e-3, link: Link = NO_LINK):
     """Critical clearing time per battery limit: the longest clearing time (on a ``resolution_s`` grid) that stays in synchronism.
 
     ``make_fault(clearing_times)`` builds the fault for an array of clearing
@@ -277,7 +292,7 @@ def critical_clearing_times(net: Network, law: NetworkLaw, make_fault, limits_pu
     one found is ignored (stability need not be monotone in the clearing time:
     with batteries it sometimes is not). Between candidates monotonicity is
     assumed, as any bisection does: a finer search (``points``) can find an
-    earlier loss.
+    earlier loss. ``link``: every run through it (:func:`simulate_network`).
     Returns per limit ``(cct_s or None, (stable_s, unstable_s), at_limit)``:
     ``None`` when even the shortest clearing time loses synchronism;
     ``at_limit`` when ``high_s`` still holds (the CCT is then at least high_s).
@@ -295,7 +310,7 @@ def critical_clearing_times(net: Network, law: NetworkLaw, make_fault, limits_pu
                 owners.extend([j] * grid.size)
         candidates, owners = np.array(candidates), np.array(owners)
         traj = simulate_network(net, law, make_fault(candidates * step), [limits_pu_mbase[j] for j in owners],
-                                duration_s, rate_hz, max_step_s, drop_lost_runs=True)
+                                duration_s, rate_hz, max_step_s, drop_lost_runs=True, link=link)
         stable = ~np.any(angle_spread(traj.delta_rad) > POLE_SLIP_RAD, axis=0)
         for j in np.unique(owners):
             mine = owners == j

@@ -1,4 +1,4 @@
-"""Scenario, plant model and gain options shared by ``nni-simulate`` and ``nni-demo``.
+"""Scenario, plant model and gain options shared by ``nni-simulate`` and ``nni-demo``; the link options of ``nni-simulate``.
 
 One helper adds the same options, with the same names and defaults, to both
 command lines; the defaults are the nodes' own (the package YAML files, read
@@ -22,8 +22,9 @@ from pathlib import Path
 import yaml
 
 from nni_battery_controller.law import ControllerParams
-from nni_msgs_adapter.ros.cli_support import CliError, finite_float, positive_float
+from nni_msgs_adapter.ros.cli_support import CliError, finite_float, float_within, positive_float
 from nni_msgs_adapter.ros.defaults import controller_defaults, plant_defaults
+from nni_plant_sim.link import Link
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.scenarios import SCENARIO_FIELDS, SCENARIOS, from_values
 
@@ -234,3 +235,42 @@ def resolve_model(args: argparse.Namespace, prog: str) -> ModelValues:
         controller[name] = plant[name]
     return ModelValues(plant, controller)
 
+
+
+#: The link options of ``nni-simulate`` (SMIB and ``--case``); they model the plant nodes' link_* parameters.
+LINK_OPTIONS = ("link_delay", "link_jitter", "link_loss", "link_seed")
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value < 2**31:
+        raise argparse.ArgumentTypeError(f"expected an integer 0..{2**31 - 1}, got {text!r}")
+    return value
+
+
+def add_link_options(parser: argparse.ArgumentParser) -> None:
+    """--link-delay/--link-jitter/--link-loss/--link-seed (None when not given, so that one that does not apply is refused)."""
+    group = parser.add_argument_group(
+        "communication link (the plant nodes' link_* parameters): the answer to measurement k takes effect at "
+        "t_k + delay + jitter u_k (u_k uniform in [0, 1), seeded by (seed, generator, k)), or is lost with the "
+        "given probability and the command in force stays")
+    group.add_argument("--link-delay", type=float_within(0.0, 10.0, "s"), metavar="S",
+                       help="fixed measurement-to-command delay, s (default 0)")
+    group.add_argument("--link-jitter", type=float_within(0.0, 10.0, "s"), metavar="S",
+                       help="extra delay uniform in [0, S), s (default 0)")
+    group.add_argument("--link-loss", type=float_within(0.0, 1.0, "(a probability)"), metavar="P",
+                       help="probability that an answer is lost (default 0)")
+    group.add_argument("--link-seed", type=_seed, metavar="N", help="seed of the jitter and loss draws (default 0)")
+
+
+def given_link_options(args: argparse.Namespace) -> list[str]:
+    """The link options given on the command line, as typed (``--link-delay``)."""
+    return [f"--{name.replace('_', '-')}" for name in LINK_OPTIONS if getattr(args, name) is not None]
+
+
+def link_of(args: argparse.Namespace) -> Link:
+    """The Link the options describe (defaults: none)."""
+    return Link(args.link_delay or 0.0, args.link_jitter or 0.0, args.link_loss or 0.0, args.link_seed or 0)

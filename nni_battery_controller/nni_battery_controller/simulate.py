@@ -9,7 +9,12 @@ Two time models of the same loop:
 * :func:`simulate_sampled`: what runs in the controller node: the law sampled at
   ``rate_hz`` (mode and output held between samples, x3 discretised exactly), the
   plant integrated with the fixed-step RK4 of :mod:`nni_plant_sim.integrators`
-  that the plant node uses too.
+  that the plant node uses too; optionally through a communication link
+  (:mod:`nni_plant_sim.link`: each command takes effect at t_k + d_k or is lost),
+  as the plant's reporting core applies it.
+
+:func:`delay_margins` finds the largest fixed measurement-to-command delay
+that keeps a run in synchronism.
 
 Pure numpy/scipy: no ROS import.
 """
@@ -39,6 +44,7 @@ from nni_battery_controller.law import (
     x3_rate,
 )
 from nni_plant_sim.integrators import advance
+from nni_plant_sim.link import NO_LINK, DelayLine, Link, integrate_through
 from nni_plant_sim.model import SmibParams
 
 #: A pole slip: the rotor angle delta against the infinite bus passes +-pi (180 degrees).
@@ -64,7 +70,8 @@ class Trajectory:
     delta_rad : rotor angle delta, rad.
     speed_rad_s : speed deviation delta' = omega - omega0, rad/s.
     x3 : controller state, pu.
-    battery_power_pu : battery power change P_ST applied from this instant, pu.
+    battery_power_pu : battery power change P_ST applied from this instant, pu (sampled runs
+        through a link: the power in force at the instant, which may change between samples).
     w : saturation variable (what the law asks the battery for), pu.
     saturated : mode |w| >= b in force from this instant.
     switch_times_s : instants where the mode changed, located as events
@@ -290,6 +297,7 @@ def simulate_sampled(
     duration_s: float,
     rate_hz: float,
     max_step_s: float = 1e-3,
+    link: Link = NO_LINK,
 ) -> Trajectory:
     """Sampled-data closed loop at ``rate_hz``: the controller node's law, offline.
 
@@ -297,6 +305,10 @@ def simulate_sampled(
     over [t_k, t_k+1) and advances x3 exactly; the plant is integrated over the
     period by :func:`nni_plant_sim.integrators.advance` (RK4, steps <= max_step_s),
     the very call the plant node makes. Returns the samples t_0 .. t_n.
+
+    ``link``: the answer to sample k takes effect at t_k + d_k, or is lost (the
+    command in force stays); the plant is integrated piecewise between those
+    instants, as the plant's reporting core does (:class:`nni_plant_sim.link.DelayLine`).
     """
     if not (math.isfinite(rate_hz) and rate_hz > 0):
         raise ValueError(f"controller rate must be finite and positive, got {rate_hz}")
@@ -307,6 +319,11 @@ def simulate_sampled(
     law = SampledController(plant, ctrl, period)
     states = np.empty((n + 1, 3))
     outputs = np.empty((n + 1, 3))
+    line = DelayLine(link, [0.0])
+
+    def piece(start, stop, x, powers):
+        return advance(start, stop, x, powers[0], plant, scenario, max_step_s)
+
     for k in range(n + 1):
         angle_dev = float(x[0]) - plant.delta_bar_rad
         if not math.isfinite(angle_dev):
@@ -316,10 +333,11 @@ def simulate_sampled(
             break
         x3 = law.x3
         power, w, saturated = law.step(angle_dev)
+        line.send(0, k, float(t[k]), power, float(t[k]))
         states[k] = (x[0], x[1], x3)
-        outputs[k] = (power, w, saturated)
+        outputs[k] = (line.powers[0], w, saturated)
         if k < n:
-            x = advance(t[k], t[k + 1], x, power, plant, scenario, max_step_s)
+            x = integrate_through(line, piece, float(t[k]), float(t[k + 1]), x)
     return Trajectory(
         plant, ctrl, t, states[:, 0], states[:, 1], states[:, 2],
         outputs[:, 0], outputs[:, 1], outputs[:, 2].astype(bool), np.empty(0),
@@ -527,6 +545,83 @@ def critical_clearing_time(in_sync, b: float, upper_s: float, tolerance_s: float
         low, high = (mid, high) if in_sync(mid) else (low, mid)
     low, high = round(low, INSTANT_DECIMALS), round(high, INSTANT_DECIMALS)
     return ClearingTime(b, low, low, high, runs)
+
+
+#: Precision of the delay margin search, s.
+DELAY_MARGIN_TOLERANCE_S = 1e-3
+
+
+@dataclass(frozen=True)
+class DelayMargin:
+    """The delay margin of one b: the largest fixed measurement-to-command delay shown to keep synchronism.
+
+    ``margin_s``: the longest delay tried that kept the run in synchronism,
+    and no shorter one tried slipped; ``slips_s``: the shortest that slipped
+    (``slips_s - margin_s`` <= the tolerance). ``margin_s`` None: the run slips
+    even without delay (no margin at all). ``slips_s`` None: no delay tried up
+    to ``upper_s`` slipped ("no margin found up to upper_s"; ``margin_s`` is
+    then the last delay tried, a lower bound, not the margin, and the JSON's
+    ``delay_margin_s`` is null).
+    """
+
+    b: float
+    margin_s: float | None
+    slips_s: float | None
+    upper_s: float
+    runs: int
+
+    def to_json(self) -> dict:
+        """JSON-ready dict; b = inf is written as the string "inf"."""
+        found = self.slips_s is not None
+        return {"b": "inf" if math.isinf(self.b) else self.b, "delay_margin_s": self.margin_s if found else None,
+                "bracket_s": [self.margin_s, self.slips_s], "slip_found": found,
+                "in_synchronism_up_to_s": self.margin_s, "searched_up_to_s": self.upper_s, "runs": self.runs}
+
+    def text(self) -> str:
+        """The table cell: the margin, or what the search found instead."""
+        if self.margin_s is None:
+            return "none: out of synchronism even without delay"
+        if self.slips_s is None:
+            return f"no margin found up to {self.upper_s:g} s (in synchronism at every delay tried)"
+        return f"{self.margin_s * 1e3:.1f} ms (slips at {self.slips_s * 1e3:.1f} ms)"
+
+
+#: Step of the delay margin's scan when not given, s.
+DELAY_SCAN_STEP_S = 0.05
+
+
+def delay_margins(in_sync, limits, scan_step_s: float, upper_s: float,
+                  tolerance_s: float = DELAY_MARGIN_TOLERANCE_S) -> list[DelayMargin]:
+    """The first loss of synchronism as the delay grows, per battery limit: scan, then bisect.
+
+    ``in_sync(delay_s, indices)`` runs the loop with a fixed delay of
+    ``delay_s`` s for the limits ``limits[i]``, i in ``indices`` (one batch),
+    and says for each whether it stayed in synchronism. Delay 0 first (a run
+    that slips there has no margin), then d = j ``scan_step_s`` for j = 1, 2,
+    ... up to ``upper_s`` until each limit's run slips, then bisection of
+    [last in sync, first slip] to ``tolerance_s``. As for any such search,
+    synchronism is assumed monotone between the delays tried (it need not be:
+    a finer scan can find an earlier loss). Delays rounded to 1 ns.
+    """
+    n = len(limits)
+    runs = [1] * n
+    at_zero = list(in_sync(0.0, list(range(n))))
+    low, high = [0.0] * n, [None if ok else 0.0 for ok in at_zero]
+    j = 1
+    while (delay := round(j * scan_step_s, INSTANT_DECIMALS)) <= upper_s + 1e-12:
+        undecided = [i for i in range(n) if high[i] is None]
+        if not undecided:
+            break
+        for i, ok in zip(undecided, in_sync(delay, undecided)):
+            runs[i] += 1
+            low[i], high[i] = (delay, None) if ok else (low[i], delay)
+        j += 1
+    for i in range(n):
+        while at_zero[i] and high[i] is not None and high[i] - low[i] > tolerance_s:
+            mid = round(0.5 * (low[i] + high[i]), INSTANT_DECIMALS)
+            runs[i] += 1
+            low[i], high[i] = (mid, high[i]) if in_sync(mid, [i])[0] else (low[i], mid)
+    return [DelayMargin(limits[i], low[i] if at_zero[i] else None, high[i], upper_s, runs[i]) for i in range(n)]
 
 
 def equal_area_clearing_time_s(plant: SmibParams) -> float:

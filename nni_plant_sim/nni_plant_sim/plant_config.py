@@ -14,6 +14,7 @@ import math
 
 from nni_msgs_adapter.ros.defaults import plant_defaults
 from nni_msgs_adapter.ros.ros_params import Spec
+from nni_plant_sim.link import Link
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.scenarios import SCENARIOS
 
@@ -46,6 +47,7 @@ def run_parameters(defaults: dict) -> tuple[Spec, ...]:
              "measurement's instant) is dropped, and the one in force decays to zero, s.", 1e-3, 100.0),
         Spec("lockstep_timeout_s", defaults["lockstep_timeout_s"], "lockstep: wall time to wait for a command before applying zero, s.",
              1e-3, 100.0),
+        *link_parameters(defaults),
     )
 
 
@@ -68,6 +70,23 @@ def parameters() -> tuple[Spec, ...]:
         Spec("fault_p_max_pu", defaults["fault_p_max_pu"], "transfer_limit_fault: P_max while the fault is on, pu.", 0.0, 1e3),
         Spec("clearing_time_s", defaults["clearing_time_s"], "transfer_limit_fault: clearing time, s.", 1e-6, 1e3),
     )
+
+
+def link_parameters(defaults: dict) -> tuple[Spec, ...]:
+    """The communication link's parameters (:mod:`nni_plant_sim.link`); a network plant's apply to every generator."""
+    return (
+        Spec("link_delay_s", defaults["link_delay_s"], "Link: fixed delay from a measurement's instant to its answer "
+             "taking effect, s (lockstep: simulated time; realtime: on the reporting grid).", 0.0, 10.0),
+        Spec("link_jitter_s", defaults["link_jitter_s"], "Link: extra delay drawn uniform in [0, this), s.", 0.0, 10.0),
+        Spec("link_loss", defaults["link_loss"], "Link: probability that an answer is lost (the command in force "
+             "stays).", 0.0, 1.0),
+        Spec("link_seed", defaults["link_seed"], "Link: seed of the jitter and loss draws.", 0, 2**31 - 1),
+    )
+
+
+def link_from(values: dict) -> Link:
+    """The Link of the parameter values."""
+    return Link(values["link_delay_s"], values["link_jitter_s"], values["link_loss"], values["link_seed"])
 
 
 def plant_from(values: dict) -> SmibParams:

@@ -36,6 +36,7 @@ from std_srvs.srv import Trigger
 
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.ros_params import check_choices, current_values, declare, install_validation, locked_changes
+from nni_plant_sim.plant_config import link_from
 from nni_plant_sim.reporting import CommandChannel, LockstepStepper, PmuSensor, RealtimeReporter, SubscriberWait
 from nni_plant_sim.scenarios import StartingAt
 
@@ -101,6 +102,7 @@ class PlantNodeBase(Node):
             locked_changes(self._values, values, [spec.name for spec in self._specs])
         locked_changes(self._values, values, *self._locked_at_start())
         self._check(values)
+        link_from(values)
         return values
 
     def _install(self, values: dict) -> None:
@@ -133,10 +135,11 @@ class PlantNodeBase(Node):
         # tick never comes before its instant and the two never drift apart (60 frames/s: 16,666,666 ns).
         self._t0_ns = self._now_ns() + (0 if self._lockstep else timer.time_until_next_call() - timer.timer_period_ns)
         state = self._state_of(self._before)
+        link = link_from(values)
         self._loop = (LockstepStepper(self._integrate, state, self._channels, values["duration_s"],
-                                      1.0 / values["pmu_rate_hz"], values["lockstep_timeout_s"]) if self._lockstep
+                                      1.0 / values["pmu_rate_hz"], values["lockstep_timeout_s"], link) if self._lockstep
                       else RealtimeReporter(self._integrate, state, self._channels, values["duration_s"],
-                                            self._t0_ns, timer.timer_period_ns, values["command_timeout_s"]))
+                                            self._t0_ns, timer.timer_period_ns, values["command_timeout_s"], link))
         if values["fault_at_start"]:
             self._start_fault_now()
         self._publish(self._loop.start(self._now_ns()))
@@ -226,7 +229,9 @@ class PlantNodeBase(Node):
             run.update(sim_time_s=self._loop.t_s, samples=self._loop.sample,
                        run_wall_s=((self._finished_ns or self._now_ns()) - self._t0_ns) * 1e-9)
         return [{**run, **label, "battery_power_pu": channel.power_pu, **channel.summary(),
-                 contract.RUN_ENDED: self._finished_ns is not None} for label, channel in zip(self._labels, self._channels)]
+                 **(self._loop.link_summary(i) if self._loop is not None else {}),
+                 contract.RUN_ENDED: self._finished_ns is not None}
+                for i, (label, channel) in enumerate(zip(self._labels, self._channels))]
 
     def _publish_diagnostics(self) -> list[dict]:
         """One status per generator (``plant``, namespaced by its hardware_id); returns their values."""

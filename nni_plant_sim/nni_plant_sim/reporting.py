@@ -19,6 +19,14 @@ Both loops drive any plant given as ``integrate(t0_s, t1_s, state, powers) ->
 state`` (``powers``: a tuple, one battery power in pu per generator, in the
 order of ``channels``) and serve one :class:`CommandChannel` per generator
 behind one reporting grid, so a plant of N generators reuses them unchanged.
+
+Both take a :class:`nni_plant_sim.link.Link` (default: none): an admitted
+answer to measurement k takes effect at t_k + d_k (lockstep: simulated time;
+realtime: the reporting grid's clock, or at its arrival if that is later), or
+is lost and the command in force stays; the physics is integrated piecewise
+between those instants (:class:`nni_plant_sim.link.DelayLine`), as the
+offline sampled simulations do. Without a link every answer takes effect at
+once and each period is one piece, as before the model existed.
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from nni_plant_sim.link import NO_LINK, DelayLine, Link
 from nni_plant_sim.loop_stats import LoopStats
 
 #: A battery command beyond this is a fault, not a request to clip (a battery a
@@ -204,7 +213,7 @@ class Output(NamedTuple):
 class _Loop:
     """The physics and the channels shared by both time modes."""
 
-    def __init__(self, integrate, state, channels, duration_s: float):
+    def __init__(self, integrate, state, channels, duration_s: float, link: Link):
         self._integrate = integrate
         self.state = state
         self.t_s = 0.0
@@ -212,6 +221,8 @@ class _Loop:
         self.duration_s = duration_s
         self.sample = 0
         self.done = False
+        self.link = link
+        self.line = DelayLine(link, self.powers, lambda index, power: self.channels[index].apply(power))
 
     @property
     def powers(self) -> tuple:
@@ -219,12 +230,19 @@ class _Loop:
 
     def advance_to(self, t_s: float) -> None:
         if t_s > self.t_s:
-            self.state = self._integrate(self.t_s, t_s, self.state, self.powers)
+            for start, stop in self.line.pieces(self.t_s, t_s):
+                self.state = self._integrate(start, stop, self.state, self.powers)
             self.t_s = t_s
 
     def replace_state(self, state) -> None:
         """A fault moved the state (at the current time)."""
         self.state = state
+
+    def link_summary(self, index: int) -> dict:
+        """Channel ``index``'s answers the link lost and those superseded; nothing without a link."""
+        if not self.link.active:
+            return {}
+        return {"link_lost": self.line.lost[index], "link_superseded": self.line.superseded[index]}
 
     def report(self, stamp_ns: int) -> Report:
         return Report(stamp_ns, self.t_s, self.state, self.powers)
@@ -241,22 +259,31 @@ class RealtimeReporter(_Loop):
     instant and counts the ones it skipped. A run of ``duration_s`` ends at its
     last instant N T, however late the tick that finds it. A command older
     than ``command_timeout_s`` decays to zero power.
+
+    With a link, the answer to instant k is held until t_k + d_k on the
+    reporting grid (at once if it arrived later than that); a lost answer
+    counts as never heard, so that losses in a row for ``command_timeout_s``
+    decay the power to zero as silence does. The controller's stand-down zero
+    and a timeout's zero take effect at once and supersede older answers on
+    their way.
     """
 
     def __init__(self, integrate, state, channels, duration_s: float, t0_ns: int, period_ns: int,
-                 command_timeout_s: float):
-        super().__init__(integrate, state, channels, duration_s)
+                 command_timeout_s: float, link: Link = NO_LINK):
+        super().__init__(integrate, state, channels, duration_s, link)
         self.t0_ns = t0_ns
         self.period_ns = period_ns
         self.period_s = period_ns * 1e-9
         self.command_timeout_s = command_timeout_s
         self._last = round(duration_s / self.period_s) if duration_s > 0 else None
-        self._ahead = None  # (t_s, state) before integrating ahead to the next instant
+        self._ahead = None  # (t_s, state, delay line) before integrating ahead to the next instant
+        self._heard_ns: list[int | None] = [None] * len(self.channels)  # arrival of the last answer not lost
 
     def advance_to(self, t_s: float) -> None:
         if t_s < self.t_s and self._ahead is not None:
             # Integrated ahead past t_s with the powers then in force; something happens earlier: redo.
-            self.t_s, self.state = self._ahead
+            self.t_s, self.state, line = self._ahead
+            self.line.restore(line)
             self._ahead = None
         super().advance_to(t_s)
 
@@ -292,12 +319,14 @@ class RealtimeReporter(_Loop):
             self.done = True
             return Output(None, (report,), True)
         self.sample += 1
-        for channel in self.channels:
+        for index, channel in enumerate(self.channels):
             channel.stats.sent(stamp_ns, stamp_ns)
-            if channel.stats.command_age_s(now_ns) > self.command_timeout_s and channel.power_pu != 0:
+            heard_ns = self._heard_ns[index]
+            age_s = math.inf if heard_ns is None else (now_ns - heard_ns) * 1e-9
+            if age_s > self.command_timeout_s and channel.power_pu != 0:
                 # The command held until now, when its age is found beyond the timeout: zero from here.
                 self.advance_to(self._elapsed_s(now_ns))
-                channel.apply(0.0)
+                self.line.force(index, instant - 1, 0.0)
                 channel.stats.command_timeouts += 1
         return Output(report, (report,), False)
 
@@ -328,12 +357,17 @@ class RealtimeReporter(_Loop):
         verdict, power = channel.admit(stamp_ns, power_pu, arrival_ns)
         if power is not None:
             self.advance_to(self._elapsed_s(arrival_ns))
-            channel.apply(power)
+            if verdict is Verdict.APPLIED:
+                k = (stamp_ns - self.t0_ns) // self.period_ns
+                if self.line.send(index, k, k * self.period_s, power, self.t_s) is not None:
+                    self._heard_ns[index] = arrival_ns
+            else:  # the stand-down
+                self.line.force(index, self.sample - 2, power)
             # Integrate now, while the loop is idle, up to the next reporting instant (the power
             # holds until the next command, which answers that instant's measurement): the tick
             # then only publishes. Profiled: this takes the RK4 (10 steps at 100/s, 0.2-0.4 ms)
             # off the measurement -> command latency.
-            self._ahead = (self.t_s, self.state)
+            self._ahead = (self.t_s, self.state, self.line.snapshot())
             self.advance_to(self.sample * self.period_s)
         return verdict, output
 
@@ -343,10 +377,16 @@ class LockstepStepper(_Loop):
 
     Sample instants are exact multiples of the period (``sample * period_s``),
     as in the offline sampled simulation, which it reproduces to rounding.
+    With a link, the answer to sample k takes effect at t_k + d_k in simulated
+    time (a delay of more than a period is a delay line: later periods are
+    integrated piecewise with the commands then in force) or is lost (the
+    command in force stays); either way it completes the handshake. A
+    timeout's zero takes effect at once.
     """
 
-    def __init__(self, integrate, state, channels, duration_s: float, period_s: float, timeout_s: float):
-        super().__init__(integrate, state, channels, duration_s)
+    def __init__(self, integrate, state, channels, duration_s: float, period_s: float, timeout_s: float,
+                 link: Link = NO_LINK):
+        super().__init__(integrate, state, channels, duration_s, link)
         self.period_s = period_s
         self.timeout_s = timeout_s
         self.awaited_ns: int | None = None
@@ -382,7 +422,7 @@ class LockstepStepper(_Loop):
         channel = self.channels[index]
         verdict, power = channel.admit(stamp_ns, power_pu, arrival_ns, self.awaited_ns)
         if power is not None:
-            channel.apply(power)
+            self.line.send(index, self.sample, self.t_s, power, self.t_s)
             self._answered.add(index)
         if len(self._answered) < len(self.channels):
             return verdict, None
@@ -398,7 +438,7 @@ class LockstepStepper(_Loop):
         for index, channel in enumerate(self.channels):
             if index not in self._answered:
                 channel.stats.deadline_misses += 1
-                channel.apply(0.0)
+                self.line.force(index, self.sample, 0.0)
         return self._complete()
 
     def _complete(self) -> Output:
