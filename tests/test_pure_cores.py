@@ -43,6 +43,7 @@ PURE_MODULES = [
     "nni_plant_sim.reporting",
     "nni_battery_controller.input_gate",
     "nni_battery_controller.controller_core",
+    "nni_battery_controller.controller_config",
 ]
 
 PROBE = """

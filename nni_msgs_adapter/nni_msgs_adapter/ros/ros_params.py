@@ -16,7 +16,10 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 
 @dataclass(frozen=True)
 class Spec:
-    """One parameter: name, default (its type is the parameter's), description, range."""
+    """One parameter: name, default (its type is the parameter's), description, range.
+
+    ``array_of`` (``str`` or ``float``) makes it a string or double array, whose default may be empty.
+    """
 
     name: str
     default: object
@@ -25,6 +28,7 @@ class Spec:
     high: float | None = None
     choices: tuple[str, ...] = ()
     read_only: bool = False
+    array_of: type | None = None
 
     def descriptor(self) -> ParameterDescriptor:
         """ParameterDescriptor with the range for numbers and choices in the text."""
@@ -41,14 +45,31 @@ class Spec:
 
 
 def declare(node, specs) -> None:
-    """Declare every spec on ``node`` (overrides from YAML / command line apply)."""
+    """Declare every spec on ``node`` (overrides from YAML / command line apply).
+
+    An array is declared by its type (an empty default has none rclpy could infer).
+    """
+    from rclpy.parameter import Parameter
+
+    array_types = {str: Parameter.Type.STRING_ARRAY, float: Parameter.Type.DOUBLE_ARRAY}
     for spec in specs:
-        node.declare_parameter(spec.name, spec.default, spec.descriptor())
+        value = array_types[spec.array_of] if spec.array_of and not spec.default else spec.default
+        node.declare_parameter(spec.name, value, spec.descriptor())
 
 
 def current_values(node, specs) -> dict:
-    """``{name: value}`` of the declared parameters."""
-    return {spec.name: node.get_parameter(spec.name).value for spec in specs}
+    """``{name: value}`` of the declared parameters (arrays as lists, an unset one empty)."""
+    from rclpy.exceptions import ParameterUninitializedException
+
+    values = {}
+    for spec in specs:
+        try:
+            values[spec.name] = node.get_parameter(spec.name).value
+        except ParameterUninitializedException:  # an array declared by its type and never given
+            values[spec.name] = []
+        if spec.array_of:
+            values[spec.name] = list(values[spec.name])
+    return values
 
 
 def check_choices(values: dict, specs) -> None:
