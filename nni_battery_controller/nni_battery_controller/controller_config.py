@@ -148,3 +148,21 @@ def centre_of_inertia(values: dict, namespace: str) -> tuple | None:
         raise ValueError(f"coi_inertias must be finite and positive, got {list(inertias)}")
     total = math.fsum(inertias)
     return tuple(names), tuple(m / total for m in inertias), names.index(namespace)
+
+
+def generator_parameters(net, index: int, reference: str = "pmu") -> dict:
+    """The network-specific controller parameters of generator ``index`` (case order) of ``net`` (a Network).
+
+    g measured; ``p_mech_pu`` its pre-fault power in pu of its rating (the wire's base); the reference
+    angle its load-flow angle, or for ``reference`` coi its angle relative to the centre of inertia, with
+    every generator's namespace (``/gen1`` .. in case order, as the network plant names them) and inertia.
+    Gains, b and the rate are the caller's.
+    """
+    scale = float(net.mbase_mva[index] / net.base_mva)
+    values = {"restoring_power": "measured", "p_mech_pu": float(net.p_mech_pu[index]) / scale}
+    if reference == "coi":
+        return {**values, "reference": "coi",
+                "reference_angle_rad": float(net.delta_bar_rad[index]) - float(net.coi(net.delta_bar_rad)),
+                "coi_namespaces": [f"/gen{j + 1}" for j in range(net.size)],
+                "coi_inertias": [float(m) for m in net.inertia_m]}
+    return {**values, "reference_angle_rad": float(net.delta_bar_rad[index])}
