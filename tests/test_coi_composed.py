@@ -20,7 +20,8 @@ from nni_battery_controller.controller_config import generator_parameters
 from nni_battery_controller.network_sim import NetworkLaw, simulate_network
 from nni_plant_sim.cases import load_network
 from nni_plant_sim.network_scenarios import BusFault
-from rosproc import fresh_domain_id, node_processes
+from nni_msgs_adapter.ros import contract
+from rosproc import Probe, fresh_domain_id, node_processes, wait_until
 from test_network_loop import DURATION_S, RATE_HZ, run_network
 
 pytestmark = pytest.mark.ros
@@ -130,3 +131,24 @@ def test_a_composed_controller_that_cannot_start_stops_the_process_with_one_line
         output = node.output().strip()
     assert output.startswith("composed_controllers: error: ") and expected in output, output
     assert len(output.splitlines()) == 1, output
+
+
+def test_sigint_stops_every_composed_controller_cleanly(tmp_path):
+    """Both nodes report on /diagnostics; on SIGINT each sends its final status and the process exits 0."""
+    domain = fresh_domain_id()
+    probe = Probe(domain, (contract.TOPIC_DIAGNOSTICS,))
+
+    def reporting(messages) -> set:
+        return {status.hardware_id for msg in messages for status in msg.status if status.name.endswith("/controller")}
+
+    try:
+        with node_processes(tmp_path, domain) as start:
+            node = start("controllers", COMPOSED, {"namespaces": ["/gen1", "/gen2"]})
+            names = {"/gen1/controller", "/gen2/controller"}
+            assert wait_until(lambda: reporting(probe.take(contract.TOPIC_DIAGNOSTICS)) == names, 60.0), node.output()
+            before = len(probe.take(contract.TOPIC_DIAGNOSTICS))
+            assert node.interrupt(timeout=15.0) == 0, node.output()
+        assert wait_until(lambda: reporting(probe.take(contract.TOPIC_DIAGNOSTICS)[before:]) == names, 5.0)
+        assert "Traceback" not in node.output(), node.output()
+    finally:
+        probe.close()
