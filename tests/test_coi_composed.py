@@ -21,7 +21,7 @@ from nni_battery_controller.network_sim import NetworkLaw, simulate_network
 from nni_plant_sim.cases import load_network
 from nni_plant_sim.network_scenarios import BusFault
 from nni_msgs_adapter.ros import contract
-from rosproc import Probe, fresh_domain_id, node_processes, wait_until
+from rosproc import Probe, busy_processes, fresh_domain_id, node_processes, wait_until
 from test_network_loop import DURATION_S, RATE_HZ, run_network
 
 pytestmark = pytest.mark.ros
@@ -54,7 +54,9 @@ def coi_run(tmp_path, net, controllers=None):
 
 @pytest.fixture(scope="module")
 def separate_coi_run(tmp_path_factory, kundur):
-    return coi_run(tmp_path_factory.mktemp("separate"), kundur)
+    """Four controller processes, with two busy processes beside them (discovery of 16 pmu readers under load)."""
+    with busy_processes(2):
+        return coi_run(tmp_path_factory.mktemp("separate"), kundur)
 
 
 def test_kundur_lockstep_with_four_coi_controller_processes_equals_the_offline_coi_simulation(kundur,
@@ -152,3 +154,59 @@ def test_sigint_stops_every_composed_controller_cleanly(tmp_path):
         assert "Traceback" not in node.output(), node.output()
     finally:
         probe.close()
+
+
+def test_a_coi_controller_answers_only_complete_stamps_and_says_what_it_could_not_use(tmp_path):
+    """Over DDS, /gen1's controller with /gen2 as neighbour (realtime stamps, wall clock).
+
+    A stamp without /gen2's sample is not answered and is given up when the next one is complete
+    (coi_incomplete, WARN); once a second writer is on /gen2/pmu its messages are not used (coi_untrusted).
+    """
+    import time
+
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    domain = fresh_domain_id()
+    params = {"restoring_power": "measured", "reference_angle_rad": 0.1, "p_mech_pu": 0.7, "reference": "coi",
+              "coi_namespaces": ["/gen1", "/gen2"], "coi_inertias": [3.0, 1.0]}
+    own = Probe(domain, (contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_DIAGNOSTICS), namespace="gen1")
+    neighbour = Probe(domain, (), namespace="gen2", node_name="gen2_pmu")
+    rogue = None
+    try:
+        with node_processes(tmp_path, domain) as start:
+            start("controller", "nni_battery_controller.controller_node", params, ("-r", "__ns:=/gen1"))
+            assert own.wait_matched(contract.TOPIC_PMU, 1, 60.0) and neighbour.wait_matched(contract.TOPIC_PMU, 1, 60.0)
+            stamp = time.time_ns()
+            own.publish(contract.TOPIC_PMU, contract.pmu_message(stamp, 0.4, 0.0, 0.7))  # /gen2's never comes
+            for probe, delta in ((own, 0.4), (neighbour, 0.8)):
+                probe.publish(contract.TOPIC_PMU, contract.pmu_message(stamp + 20_000_000, delta, 0.0, 0.7))
+            (command,) = own.wait_for(contract.TOPIC_BATTERY_COMMAND, 1, 10.0)
+            d = 0.4 - (0.75 * 0.4 + 0.25 * 0.8) - 0.1  # delta_1 - delta_COI - reference_angle_rad
+            assert contract.command_from_message(command) == (stamp + 20_000_000, pytest.approx(-1.1 * d, abs=1e-12))
+
+            rogue = Probe(domain, (), namespace="gen2", node_name="rogue")
+            rogue.advertise(contract.TOPIC_PMU)
+            assert rogue.wait_matched(contract.TOPIC_PMU, 1, 30.0)  # the rogue's writer matched the controller
+            time.sleep(0.5)  # and the controller's reader the rogue (DDS matches both ends within milliseconds)
+            for probe in (own, neighbour):
+                probe.publish(contract.TOPIC_PMU, contract.pmu_message(stamp + 40_000_000, 0.4, 0.0, 0.7))
+
+            def status():
+                found = [s for m in own.take(contract.TOPIC_DIAGNOSTICS) for s in m.status
+                         if s.hardware_id == "/gen1/controller"]
+                return {kv.key: kv.value for kv in found[-1].values} if found else {}
+            assert wait_until(lambda: status().get("coi_untrusted") == "1", 10.0), status()
+            assert status()["coi_incomplete"] == "1" and status()["samples"] == "1"
+            # No answer since the first: the watchdog stood down (STALE), its status naming what the coi lacked.
+            messages = " ".join(s.message for m in own.take(contract.TOPIC_DIAGNOSTICS) for s in m.status
+                                if s.hardware_id == "/gen1/controller" and s.level == DiagnosticStatus.STALE)
+            assert messages.startswith("STALE; centre of inertia: coi_") and "coi_incomplete" in messages
+            assert "coi_untrusted" in messages, messages
+            commands = [contract.command_from_message(m) for m in own.take(contract.TOPIC_BATTERY_COMMAND)]
+            answered = {s for s, _ in commands} & {stamp, stamp + 20_000_000, stamp + 40_000_000}
+            assert answered == {stamp + 20_000_000}, "nothing answered from a partial or unattributable sample"
+            assert [power for s, power in commands if s not in answered] == [0.0], "the watchdog's one stand-down"
+    finally:
+        for probe in (own, neighbour, rogue):
+            if probe is not None:
+                probe.close()

@@ -220,11 +220,15 @@ class ControllerCore:
         return None if self.run_ended else self.gate.silence(wall_ns)
 
     def status(self) -> tuple[str, str, dict]:
-        """``(level, message, values)`` of the diagnostics: STALE, else WARN while a coi counter grew since the last."""
+        """``(level, message, values)`` of the diagnostics: STALE, else WARN while a coi counter grew since the last.
+
+        The message names the coi counters that grew (after ``STALE; `` when stale: often their cause).
+        """
         coi = {} if self.coi is None else dict(self.coi.counts)
         grew = [name for name, count in coi.items() if count > self._reported.get(name, 0)]
         self._reported = coi
         level = "STALE" if self.gate.stale else "WARN" if grew else "OK"
-        message = "STALE" if self.gate.stale else f"centre of inertia: {', '.join(grew)}" if grew else "OK"
+        message = "; ".join(([level] if level != "WARN" else []) + ([f"centre of inertia: {', '.join(grew)}"] if grew
+                                                                    else []))
         return level, message, {"x3": self.law.x3, "battery_limit_pu": self.config.ctrl.battery_limit_pu,
                                 **self.gate.counts, **coi}
