@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from nni_battery_controller.controller_config import ControllerConfig
+from nni_battery_controller.controller_config import ControllerConfig, prepared
 from nni_battery_controller.controller_core import MAX_PENDING_STAMPS, ControllerCore
 from nni_msgs_adapter.ros.defaults import controller_defaults
 
@@ -150,3 +150,15 @@ def test_the_own_measurement_still_goes_through_the_gate():
 def test_a_coi_configuration_that_cannot_work_is_refused_with_its_reason(changes, reason):
     with pytest.raises(ValueError, match=reason):
         ControllerConfig({**measured_values(**COI), **changes}, "/gen2")
+
+
+def test_the_angle_reference_cannot_change_once_the_node_is_up_and_the_gains_still_can():
+    """The node subscribes to the coi topics at start: a later reference change would be silently not applied."""
+    old = measured_values(**COI)
+    with pytest.raises(ValueError, match="reference cannot change once the node is up"):
+        prepared(old, {**old, "reference": "pmu", "coi_namespaces": [], "coi_inertias": []}, "/gen2", active=False)
+    with pytest.raises(ValueError, match="coi_inertias cannot change once the node is up"):
+        prepared(old, {**old, "coi_inertias": [1.0, 1.0, 1.0]}, "/gen2", active=False)
+    assert prepared(old, {**old, "gain_k": 0.9}, "/gen2", active=True).ctrl.gain_k == 0.9
+    with pytest.raises(ValueError, match="battery_limit_pu cannot change while a run is active"):
+        prepared(old, {**old, "battery_limit_pu": 0.2}, "/gen2", active=True)

@@ -74,11 +74,17 @@ def locked_when_active() -> tuple[str, ...]:
     return tuple(spec.name for spec in parameters() if spec.name not in TUNABLE)
 
 
+#: Read at start only: they decide which pmu topics the node subscribes to.
+READ_AT_START = ("reference", "coi_namespaces", "coi_inertias")
+
+
 def prepared(old: dict, values: dict, namespace: str, active: bool) -> "ControllerConfig":
     """The configuration of a runtime change from ``old`` to ``values``; ValueError (its reason) rejects it.
 
-    While a run is active (the controller answers measurements) only :data:`TUNABLE` may change.
+    :data:`READ_AT_START` never changes; while a run is active (the controller answers measurements)
+    only :data:`TUNABLE` may change.
     """
+    locked_changes(old, values, READ_AT_START, "once the node is up (its pmu subscriptions are made at start)")
     locked_changes(old, values, locked_when_active() if active else ())
     return ControllerConfig(values, namespace)
 
