@@ -150,9 +150,7 @@ class ControllerCore:
         return self.gate.counts["samples"] > 0
 
     def reconfigure(self, config) -> None:
-        """New gains or bounds; the law's state is kept (the coi reference can change only before a run)."""
-        if config.coi != self.config.coi:
-            self.coi = None if config.coi is None else CentreOfInertia(*config.coi[1:])
+        """New gains or bounds; the law's state is kept (the angle reference never changes: read at start)."""
         self._configure(config)
         self.law = SampledController(config.plant, config.ctrl, config.period_s, x3=self.law.x3)
         self.gate.configure(*config.gate_bounds)
