@@ -143,6 +143,8 @@ def test_the_own_measurement_still_goes_through_the_gate():
     ({"coi_inertias": [1.0, 1.0]}, "one coi_inertias value each, got 3 and 2"),
     ({"coi_namespaces": ["/gen2"], "coi_inertias": [1.0]}, "at least two generators"),
     ({"coi_namespaces": ["/gen1", "gen2", "/gen3"]}, "distinct absolute namespaces"),
+    ({"coi_namespaces": ["/gen1", "/gen2/", "/gen3"]}, "distinct absolute namespaces"),
+    ({"coi_namespaces": ["/gen1", "/gen2", "/gen2"]}, "distinct absolute namespaces"),
     ({"coi_namespaces": ["/gen1", "/gen3", "/gen4"]}, "include this controller's own namespace /gen2"),
     ({"coi_inertias": [1.0, 0.0, 1.0]}, "finite and positive"),
     ({"reference": "pmu"}, "apply to reference coi only"),

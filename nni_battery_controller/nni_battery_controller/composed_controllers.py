@@ -38,8 +38,7 @@ def compose() -> list[Node]:
     namespaces = current_values(host, (NAMESPACES,))["namespaces"]
     if not namespaces:
         raise ValueError("namespaces is empty: give the generators' namespaces, e.g. -p namespaces:=\"['/gen1']\"")
-    if len(set(namespaces)) != len(namespaces) or not all(ns.startswith("/") and len(ns) > 1 for ns in namespaces):
-        raise ValueError(f"namespaces must be distinct absolute namespaces (/gen1, ...), got {namespaces}")
+    controller_config.check_namespaces("namespaces", namespaces)
     nodes = [host]
     for namespace in namespaces:
         try:

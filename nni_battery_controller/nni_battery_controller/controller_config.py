@@ -134,6 +134,12 @@ def reference_angle(values: dict, plant: SmibParams | None) -> float:
     return plant.delta_bar_rad
 
 
+def check_namespaces(parameter: str, names) -> None:
+    """ValueError unless ``names`` are distinct absolute namespaces (``/gen1``: a leading, no trailing slash)."""
+    if len(set(names)) != len(names) or not all(name.startswith("/") and not name.endswith("/") for name in names):
+        raise ValueError(f"{parameter} must be distinct absolute namespaces (/gen1, ...), got {list(names)}")
+
+
 def centre_of_inertia(values: dict, namespace: str) -> tuple | None:
     """``(namespaces, weights, own index)`` for reference coi, None for pmu; ValueError for what cannot work."""
     names, inertias = values["coi_namespaces"], values["coi_inertias"]
@@ -146,8 +152,7 @@ def centre_of_inertia(values: dict, namespace: str) -> tuple | None:
     if len(names) < 2 or len(inertias) != len(names):
         raise ValueError(f"reference coi needs coi_namespaces of at least two generators and one coi_inertias value "
                          f"each, got {len(names)} and {len(inertias)}")
-    if len(set(names)) != len(names) or not all(name.startswith("/") and len(name) > 1 for name in names):
-        raise ValueError(f"coi_namespaces must be distinct absolute namespaces (/gen1, ...), got {list(names)}")
+    check_namespaces("coi_namespaces", names)
     if namespace not in names:
         raise ValueError(f"coi_namespaces must include this controller's own namespace {namespace}")
     if not all(math.isfinite(m) and m > 0 for m in inertias):
