@@ -123,8 +123,10 @@ def test_a_neighbours_bad_message_or_a_second_writer_on_a_listed_topic_is_counte
     assert send(core, 2, NOW, math.nan) is None and send(core, 2, NOW, 1e7) is None  # non-finite, implausible
     assert send(core, 0, NOW, 0.5, writers=2) is None  # a rogue beside the plant on /gen1/pmu
     assert send(core, 1, NOW, 0.5) is None and send(core, 0, NOW, 0.5) is None  # gen3 still missing
-    assert core.coi.counts == {"coi_incomplete": 0, "coi_rejected": 3, "coi_untrusted": 1}
+    assert send(core, 0, NOW, 0.9) is None  # gen1 again for the stamp: its first sample stands
+    assert core.coi.counts == {"coi_incomplete": 0, "coi_rejected": 4, "coi_untrusted": 1}
     assert core.gate.counts["malformed"] == 0 and core.gate.counts["samples"] == 0
+    assert send(core, 2, NOW, 0.5).angle_dev_rad == pytest.approx(0.5 - 0.5 - 0.3, abs=1e-15)  # gen1's 0.5 stood
 
 
 def test_the_own_measurement_still_goes_through_the_gate():

@@ -33,7 +33,8 @@ controller without answers and, after ``stale_after_periods``, standing down
 (diagnostics, WARN while they grow): ``coi_incomplete`` (a stamp given up
 without every generator's sample: a later stamp was complete first, or more
 than :data:`MAX_PENDING_STAMPS` were waiting), ``coi_rejected`` (a neighbour's
-message malformed, non-finite or implausible) and ``coi_untrusted`` (a message
+message malformed, non-finite or implausible, or any generator's repeated sample of
+a stamp still waiting) and ``coi_untrusted`` (a message
 on a topic with other than exactly one writer: rclpy does not say which writer
 sent a message, so a second writer on any listed pmu topic makes every message
 on it unattributable, as the plant treats its command topic).
@@ -100,6 +101,10 @@ class CentreOfInertia:
             self.counts["coi_rejected"] += 1
             return None
         entry = self.pending.pop(stamp_ns, None) or [[None] * len(self.weights), None]
+        if entry[0][index] is not None:  # a repeated sample of a stamp still waiting: the first one stands
+            self.counts["coi_rejected"] += 1
+            self.pending[stamp_ns] = entry
+            return None
         entry[0][index] = delta_rad
         if index == self.own:
             entry[1] = own
