@@ -127,7 +127,7 @@ def test_lockstep_applies_an_answer_from_its_measurements_instant_plus_the_delay
     assert loop.state == [(0.0, 0.02, (0.0,)), (0.02, 0.025, (0.0,)), (0.025, 0.04, (0.1,)), (0.04, 0.045, (0.1,)),
                           (0.045, 0.06, (0.2,))]
     assert output.done and output.states[-1].powers == (0.2,), "the answer to sample 2 never took effect"
-    assert loop.summary()["link_lost"] == 0
+    assert loop.link_summary(0)["link_lost"] == 0
 
 
 def test_lockstep_with_a_lost_answer_steps_on_with_the_command_in_force():
@@ -135,7 +135,7 @@ def test_lockstep_with_a_lost_answer_steps_on_with_the_command_in_force():
     loop.start(0)
     loop.sent(0)
     _, output = loop.command(0, 0, 0.5, 1)
-    assert output is not None and loop.state == [(0.0, 0.02, (0.0,))] and loop.summary()["link_lost"] == 1
+    assert output is not None and loop.state == [(0.0, 0.02, (0.0,))] and loop.link_summary(0)["link_lost"] == 1
     assert loop.channels[0].stats.deadline_misses == 0
 
 

@@ -15,6 +15,7 @@ import time
 import numpy as np
 import pytest
 
+from nni_battery_controller.controller_config import generator_parameters
 from nni_battery_controller.network_sim import NetworkLaw, NetworkTrajectory, assess_network, simulate_network
 from nni_msgs_adapter.ros import contract
 from nni_plant_sim.cases import load_network
@@ -37,9 +38,7 @@ def kundur():
 
 def controller_parameters(net, i: int, b: float) -> dict:
     """Generator i's controller: g measured, its pre-fault angle and power (pu of its rating), the default gains."""
-    scale = float(net.mbase_mva[i] / net.base_mva)
-    return {"restoring_power": "measured", "reference_angle_rad": float(net.delta_bar_rad[i]),
-            "p_mech_pu": float(net.p_mech_pu[i]) / scale, "battery_limit_pu": b, "sample_rate_hz": RATE_HZ}
+    return {**generator_parameters(net, i), "battery_limit_pu": b, "sample_rate_hz": RATE_HZ}
 
 
 def summary(plant) -> dict:
@@ -47,18 +46,31 @@ def summary(plant) -> dict:
     return json.loads(line[len(SUMMARY_PREFIX):])
 
 
-def run_network(tmp_path, net, b: float, answering=None, plant_extra=None, disturbance=FAULT):
-    """Plant + a controller in each generator's namespace (those in ``answering``, default all); the probes' states."""
+def separate_controllers(start, parameters: dict) -> None:
+    """One controller process per generator, in its namespace (``parameters``: namespace -> its values)."""
+    for ns, values in parameters.items():
+        start(f"controller_{ns}", CONTROLLER, values, ("-r", f"__ns:=/{ns}"))
+
+
+def run_network(tmp_path, net, b: float, answering=None, plant_extra=None, controller_extra=None,
+                controllers=separate_controllers, disturbance=FAULT):
+    """Plant + a controller in each generator's namespace (those in ``answering``, default all); the probes' states.
+
+    ``controller_extra(i)``: more parameters of generator i's controller; ``controllers(start, parameters)``
+    starts them (default: one process each).
+    """
     domain = fresh_domain_id()
     namespaces = [f"gen{i + 1}" for i in range(net.size)]
     probes = [Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_PMU), namespace=ns) for ns in namespaces]
     silent = []
     try:
         with node_processes(tmp_path, domain) as start:
+            extra = controller_extra or (lambda i: {})
+            controllers(start, {ns: {**controller_parameters(net, i, b), **extra(i)} for i, ns in enumerate(namespaces)
+                                if answering is None or i in answering})
             for i, ns in enumerate(namespaces):
-                if answering is None or i in answering:
-                    start(f"controller_{ns}", CONTROLLER, controller_parameters(net, i, b), ("-r", f"__ns:=/{ns}"))
-                else:  # a controller that reads the PMU and never answers: the plant pairs with it, times out
+                if answering is not None and i not in answering:
+                    # a controller that reads the PMU and never answers: the plant pairs with it, times out
                     silent.append(Probe(domain, (contract.TOPIC_PMU,), namespace=ns, node_name="silent_controller"))
                     silent[-1].wait_matched(contract.TOPIC_BATTERY_COMMAND, 0, 0.0)  # makes its writer
             params = {**disturbance, "duration_s": DURATION_S, "pmu_rate_hz": RATE_HZ, "wait_for_subscribers": 2,

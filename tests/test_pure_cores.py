@@ -47,6 +47,7 @@ PURE_MODULES = [
     "nni_plant_sim.link",
     "nni_battery_controller.input_gate",
     "nni_battery_controller.controller_core",
+    "nni_battery_controller.controller_config",
 ]
 
 PROBE = """

@@ -1,7 +1,18 @@
 """The controller node's parameters: declared once with unit and range, and the configuration they build.
 
 Read by :mod:`nni_battery_controller.controller_node`; the defaults live in ``config/controller.yaml``,
-read on the first call of :func:`parameters` (not at import).
+read on the first call of :func:`parameters` (not at import). Pure: no rclpy.
+
+Which parameters a mode needs (:class:`ControllerConfig` refuses the others' violations only where they matter):
+
+* ``restoring_power model`` (the SMIB): the plant model ``p_mech_pu < p_max_pu`` (d is measured from
+  delta_bar = asin(P_M/P_max)), ``inertia_h_s`` and ``f0_hz`` for W_hat;
+* ``restoring_power measured`` (a generator in a network): ``p_mech_pu`` (its pre-fault electrical power) and
+  ``reference_angle_rad``; no SMIB model is built, so P_M >= P_max (IEEE 39's G10 carries 1.0 pu of its
+  rating) is no error, and ``p_max_pu``, ``inertia_h_s``, ``f0_hz`` are not used;
+* ``reference coi`` (measured only): ``coi_namespaces`` and ``coi_inertias``, with d = delta_i - delta_COI -
+  ``reference_angle_rad``, the reference angle then being the generator's pre-fault angle relative to the
+  centre of inertia (delta_bar_i - sum_j M_j delta_bar_j / sum_j M_j), as ``nni-simulate --reference coi``.
 """
 
 from __future__ import annotations
@@ -10,8 +21,9 @@ import functools
 import math
 
 from nni_battery_controller.law import ControllerParams
+from nni_battery_controller.network_sim import ANGLE_REFERENCES
 from nni_msgs_adapter.ros.defaults import controller_defaults
-from nni_msgs_adapter.ros.ros_params import Spec
+from nni_msgs_adapter.ros.ros_params import Spec, locked_changes
 from nni_plant_sim.model import SmibParams
 
 
@@ -40,7 +52,15 @@ def parameters() -> tuple[Spec, ...]:
              "measured (a generator in a network: g = p_mech_pu - the electrical power its PMU measured).",
              choices=("model", "measured")),
         Spec("reference_angle_rad", defaults["reference_angle_rad"], "restoring_power measured: the generator's pre-fault "
-             "angle, rad, that d is measured from (.inf, the default: not set, for model: delta_bar = asin(P_M/P_max))."),
+             "angle, rad, that d is measured from (.inf, the default: not set, for model: delta_bar = asin(P_M/P_max)); "
+             "with reference coi, relative to the centre of inertia."),
+        Spec("reference", defaults["reference"], "The angle d is measured against: pmu (the PMU's own angle) or coi "
+             "(relative to the centre of inertia of the generators in coi_namespaces, from their PMUs; needs "
+             "restoring_power measured).", choices=ANGLE_REFERENCES),
+        Spec("coi_namespaces", defaults["coi_namespaces"], "reference coi: the generators whose pmu topics make the "
+             "centre of inertia, absolute namespaces (/gen1, ...), this controller's own among them.", array_of=str),
+        Spec("coi_inertias", defaults["coi_inertias"], "reference coi: their inertias M_j in coi_namespaces' order "
+             "(any one unit), > 0.", array_of=float),
     )
 
 
@@ -54,17 +74,106 @@ def locked_when_active() -> tuple[str, ...]:
     return tuple(spec.name for spec in parameters() if spec.name not in TUNABLE)
 
 
-class ControllerConfig:
-    """Validated configuration built from parameter values (ValueError names the problem)."""
+#: Read at start only: they decide which pmu topics the node subscribes to.
+READ_AT_START = ("reference", "coi_namespaces", "coi_inertias")
 
-    def __init__(self, values: dict):
+
+def prepared(old: dict, values: dict, namespace: str, active: bool) -> "ControllerConfig":
+    """The configuration of a runtime change from ``old`` to ``values``; ValueError (its reason) rejects it.
+
+    :data:`READ_AT_START` never changes; while a run is active (the controller answers measurements)
+    only :data:`TUNABLE` may change.
+    """
+    locked_changes(old, values, READ_AT_START, "once the node is up (its pmu subscriptions are made at start)")
+    locked_changes(old, values, locked_when_active() if active else ())
+    return ControllerConfig(values, namespace)
+
+
+class ControllerConfig:
+    """Validated configuration built from parameter values (ValueError names the problem).
+
+    ``namespace``: the node's own (``/`` or ``/gen1``), which ``coi_namespaces`` must list.
+    """
+
+    def __init__(self, values: dict, namespace: str = "/"):
         self.values = values
         self.ctrl = ControllerParams(values["tau_s"], values["gain_k"], values["gain_l"], values["alpha"],
                                      values["battery_limit_pu"])
-        self.plant = SmibParams(values["inertia_h_s"], 0.0, values["p_mech_pu"], values["p_max_pu"],
-                                values["f0_hz"])
+        self.measures_power = values["restoring_power"] == "measured"
+        self.p_mech_pu = values["p_mech_pu"]
+        #: The SMIB model (g(d), delta_bar, W_hat); None for g measured, which uses none of it.
+        self.plant = None if self.measures_power else SmibParams(
+            values["inertia_h_s"], 0.0, values["p_mech_pu"], values["p_max_pu"], values["f0_hz"])
+        self.reference_rad = reference_angle(values, self.plant)
+        #: reference coi: ``(namespaces, weights M_j / sum M, own index)``, else None.
+        self.coi = centre_of_inertia(values, namespace)
+        #: The namespaces of the pmu topics read: the node's own ("") or, for coi, every listed generator's.
+        self.pmu_namespaces = self.coi[0] if self.coi else ("",)
         self.period_s = 1.0 / values["sample_rate_hz"]
         self.stale_after_s = values["stale_after_periods"] * self.period_s
         #: InputGate's (gap_ns, tolerance_ns, reanchor_after).
         self.gate_bounds = (round(self.stale_after_s * 1e9), round(values["stamp_tolerance_s"] * 1e9),
                             values["reanchor_after"])
+
+
+def reference_angle(values: dict, plant: SmibParams | None) -> float:
+    """The angle d is measured from: the SMIB model's delta_bar, or ``reference_angle_rad`` for g measured.
+
+    ValueError (the reason a parameter change is rejected) when
+    ``reference_angle_rad`` is missing where it is needed (.inf, the default:
+    not set; not NaN, which would differ from itself in the run's lockdown
+    check) or given where it does not apply.
+    """
+    given = values["reference_angle_rad"]
+    if plant is None:
+        if not math.isfinite(given):
+            raise ValueError("restoring_power measured needs reference_angle_rad (the generator's pre-fault angle)")
+        return given
+    if given != math.inf:
+        raise ValueError("reference_angle_rad applies to restoring_power measured only (the model's is asin(P_M/P_max))")
+    return plant.delta_bar_rad
+
+
+def check_namespaces(parameter: str, names) -> None:
+    """ValueError unless ``names`` are distinct absolute namespaces (``/gen1``: a leading, no trailing slash)."""
+    if len(set(names)) != len(names) or not all(name.startswith("/") and not name.endswith("/") for name in names):
+        raise ValueError(f"{parameter} must be distinct absolute namespaces (/gen1, ...), got {list(names)}")
+
+
+def centre_of_inertia(values: dict, namespace: str) -> tuple | None:
+    """``(namespaces, weights, own index)`` for reference coi, None for pmu; ValueError for what cannot work."""
+    names, inertias = values["coi_namespaces"], values["coi_inertias"]
+    if values["reference"] != "coi":
+        if names or inertias:
+            raise ValueError("coi_namespaces and coi_inertias apply to reference coi only")
+        return None
+    if values["restoring_power"] != "measured":
+        raise ValueError("reference coi needs restoring_power measured (a generator in a network)")
+    if len(names) < 2 or len(inertias) != len(names):
+        raise ValueError(f"reference coi needs coi_namespaces of at least two generators and one coi_inertias value "
+                         f"each, got {len(names)} and {len(inertias)}")
+    check_namespaces("coi_namespaces", names)
+    if namespace not in names:
+        raise ValueError(f"coi_namespaces must include this controller's own namespace {namespace}")
+    if not all(math.isfinite(m) and m > 0 for m in inertias):
+        raise ValueError(f"coi_inertias must be finite and positive, got {list(inertias)}")
+    total = math.fsum(inertias)
+    return tuple(names), tuple(m / total for m in inertias), names.index(namespace)
+
+
+def generator_parameters(net, index: int, reference: str = "pmu") -> dict:
+    """The network-specific controller parameters of generator ``index`` (case order) of ``net`` (a Network).
+
+    g measured; ``p_mech_pu`` its pre-fault power in pu of its rating (the wire's base); the reference
+    angle its load-flow angle, or for ``reference`` coi its angle relative to the centre of inertia, with
+    every generator's namespace (``/gen1`` .. in case order, as the network plant names them) and inertia.
+    Gains, b and the rate are the caller's.
+    """
+    scale = float(net.mbase_mva[index] / net.base_mva)
+    values = {"restoring_power": "measured", "p_mech_pu": float(net.p_mech_pu[index]) / scale}
+    if reference == "coi":
+        return {**values, "reference": "coi",
+                "reference_angle_rad": float(net.delta_bar_rad[index]) - float(net.coi(net.delta_bar_rad)),
+                "coi_namespaces": [f"/gen{j + 1}" for j in range(net.size)],
+                "coi_inertias": [float(m) for m in net.inertia_m]}
+    return {**values, "reference_angle_rad": float(net.delta_bar_rad[index])}

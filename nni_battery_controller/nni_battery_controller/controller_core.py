@@ -3,7 +3,8 @@
 :class:`ControllerCore` takes a measurement (its stamp, values, the reference
 clock and the wall time of arrival) and returns the :class:`Answer` to
 publish, or None when the gate dropped it (:mod:`.input_gate` counts why).
-The controller node only translates messages and timers.
+The controller node only translates messages and timers: each PMU message
+goes to :meth:`ControllerCore.receive` with the number of writers on its topic.
 
 Where g comes from (parameter ``restoring_power``):
 
@@ -18,6 +19,25 @@ Where g comes from (parameter ``restoring_power``):
   already in force, and a controller (re)started mid-run would take a
   disturbed value as its reference for good. W_hat is the SMIB's Lyapunov
   candidate: it is not defined for a generator in a network, and is NaN there.
+
+The angle reference (parameter ``reference``, :mod:`.controller_config`):
+``pmu`` uses the own PMU's angle alone; ``coi`` (issue 14) measures d against
+the centre of inertia delta_COI = sum_j M_j delta_j / sum_j M_j of the
+generators in ``coi_namespaces`` (:class:`CentreOfInertia`), as
+``nni-simulate --case ... --reference coi`` does. A sample is answered only
+once every listed generator's measurement of the same stamp has arrived; the
+own measurement then goes through the gate (stamps, duplicates, gaps, the
+stale watchdog) as in pmu mode, so a neighbour that falls silent leaves the
+controller without answers and, after ``stale_after_periods``, standing down
+(zero power, STALE), never answering on a partial centre of inertia. Counted
+(diagnostics, WARN while they grow): ``coi_incomplete`` (a stamp given up
+without every generator's sample: a later stamp was complete first, or more
+than :data:`MAX_PENDING_STAMPS` were waiting), ``coi_rejected`` (a neighbour's
+message malformed, non-finite or implausible, or any generator's repeated sample of
+a stamp still waiting) and ``coi_untrusted`` (a message
+on a topic with other than exactly one writer: rclpy does not say which writer
+sent a message, so a second writer on any listed pmu topic makes every message
+on it unattributable, as the plant treats its command topic).
 """
 
 from __future__ import annotations
@@ -25,7 +45,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from nni_battery_controller.input_gate import InputGate, Verdict
+from nni_battery_controller.input_gate import MAX_PLAUSIBLE_ANGLE_RAD, InputGate, Verdict
 from nni_battery_controller.law import ControllerParams, SampledController, closed_loop_lyapunov
 from nni_plant_sim.model import SmibParams
 
@@ -57,41 +77,77 @@ class Answer:
                 self.ctrl.battery_limit_pu)
 
 
-RESTORING_POWER = ("model", "measured")
+#: Stamps of the centre of inertia waiting for their samples at most (the oldest is given up beyond).
+MAX_PENDING_STAMPS = 4
+#: The counters of the coi reference, beside the gate's.
+COI_COUNTERS = ("coi_incomplete", "coi_rejected", "coi_untrusted")
 
 
-def reference_angle(values: dict, plant: SmibParams) -> float:
-    """The angle d is measured from: the SMIB model's delta_bar, or ``reference_angle_rad`` for g measured.
+class CentreOfInertia:
+    """Collects one stamp's angles from every generator of the centre of inertia; weights M_j / sum M."""
 
-    ValueError (the reason a parameter change is rejected) when
-    ``reference_angle_rad`` is missing where it is needed (.inf, the default:
-    not set; not NaN, which would differ from itself in the run's lockdown
-    check) or given where it does not apply.
-    """
-    given = values["reference_angle_rad"]
-    if values["restoring_power"] == "measured":
-        if not math.isfinite(given):
-            raise ValueError("restoring_power measured needs reference_angle_rad (the generator's pre-fault angle)")
-        return given
-    if given != math.inf:
-        raise ValueError("reference_angle_rad applies to restoring_power measured only (the model's is asin(P_M/P_max))")
-    return plant.delta_bar_rad
+    def __init__(self, weights: tuple, own: int):
+        self.weights, self.own = weights, own
+        #: stamp -> [one angle per generator (None: not yet), the own measurement]; in arrival order.
+        self.pending: dict[int, list] = {}
+        self.counts = dict.fromkeys(COI_COUNTERS, 0)
+
+    def add(self, index: int, stamp_ns: int, delta_rad: float, own=None) -> tuple | None:
+        """Generator ``index``'s angle at ``stamp_ns`` (``own``: the own measurement, kept with its stamp).
+
+        ``(delta_COI, own)`` once the stamp is complete, else None.
+        """
+        if index != self.own and not (math.isfinite(delta_rad) and abs(delta_rad) <= MAX_PLAUSIBLE_ANGLE_RAD):
+            self.counts["coi_rejected"] += 1
+            return None
+        entry = self.pending.pop(stamp_ns, None) or [[None] * len(self.weights), None]
+        if entry[0][index] is not None:  # a repeated sample of a stamp still waiting: the first one stands
+            self.counts["coi_rejected"] += 1
+            self.pending[stamp_ns] = entry
+            return None
+        entry[0][index] = delta_rad
+        if index == self.own:
+            entry[1] = own
+        if None in entry[0]:
+            self.pending[stamp_ns] = entry
+            if len(self.pending) > MAX_PENDING_STAMPS:
+                self.give_up(next(iter(self.pending)))
+            return None
+        for older in list(self.pending):  # every stamp that began before this one and is still short of samples
+            self.give_up(older)
+        return math.fsum(w * delta for w, delta in zip(self.weights, entry[0])), entry[1]
+
+    def give_up(self, stamp_ns: int) -> None:
+        """Drop a stamp that will not be answered (counted)."""
+        del self.pending[stamp_ns]
+        self.counts["coi_incomplete"] += 1
 
 
 class ControllerCore:
-    """Gate and law for a configuration with ``plant``, ``ctrl``, ``period_s``, ``gate_bounds`` and ``values``."""
+    """Gate and law for a :class:`~nni_battery_controller.controller_config.ControllerConfig`."""
 
     def __init__(self, config):
         self._configure(config)
         self.law = SampledController(config.plant, config.ctrl, config.period_s)
         self.gate = InputGate(*config.gate_bounds)
+        self.coi = None if config.coi is None else CentreOfInertia(*config.coi[1:])
+        self._reported = {}  # the coi counters at the last status
         #: The plant said its run has ended, and no measurement came since: the silence is no fault.
         self.run_ended = False
 
     def _configure(self, config) -> None:
-        self._reference_rad = reference_angle(config.values, config.plant)
-        self.measures_power = config.values["restoring_power"] == "measured"
+        self._reference_rad = config.reference_rad
+        self.measures_power = config.measures_power
         self.config = config
+
+    @staticmethod
+    def warm_up(config) -> Answer:
+        """One answer of a throwaway core: the node builds its messages once, publishing nothing.
+
+        Profiled: the first pass costs ~5 ms (first JointState, numpy's first calls), which sample 0
+        would otherwise pay as latency (above 200/s, as a deadline miss).
+        """
+        return ControllerCore(config).measurement(0, config.reference_rad, 0.0, 0, 0, config.p_mech_pu)
 
     @property
     def active(self) -> bool:
@@ -99,16 +155,46 @@ class ControllerCore:
         return self.gate.counts["samples"] > 0
 
     def reconfigure(self, config) -> None:
-        """New gains or bounds; the law's state is kept."""
+        """New gains or bounds; the law's state is kept (the angle reference never changes: read at start)."""
         self._configure(config)
         self.law = SampledController(config.plant, config.ctrl, config.period_s, x3=self.law.x3)
         self.gate.configure(*config.gate_bounds)
 
+    def receive(self, index: int, reading: tuple | None, effort, writers: int, arrival_ns: int,
+                clock_ns: int | None, clock_writers) -> Answer | None:
+        """A PMU message of generator ``index`` (0: the own in pmu mode; coi_namespaces' order for coi).
+
+        ``reading``: ``(stamp_ns, delta, speed)``, None if the message was malformed; ``effort``: its
+        efforts (P_E); ``writers``: how many writers its topic has; ``arrival_ns``: wall time. Stamps are
+        checked against /clock (``clock_ns``, the latest, None before any) when a plant publishes it
+        (``clock_writers()`` > 0: 0 before its first tick), else against wall time. The answer, or None.
+        """
+        reference_ns = clock_ns if clock_ns is not None else 0 if clock_writers() > 0 else arrival_ns
+        if self.coi is not None and writers != 1:
+            self.coi.counts["coi_untrusted"] += 1
+            return None
+        own = self.coi is None or index == self.coi.own
+        if own and (reading is None or (self.measures_power and len(effort) != 1)):  # g measured: P_E is needed
+            self.gate.malformed()
+            return None
+        p_elec = effort[0] if own and self.measures_power else math.nan
+        if self.coi is None:
+            return self.measurement(*reading, reference_ns, arrival_ns, p_elec)
+        if reading is None:
+            self.coi.counts["coi_rejected"] += 1
+            return None
+        complete = self.coi.add(index, reading[0], reading[1], (reading, p_elec) if own else None)
+        if complete is None:
+            return None
+        coi_rad, ((stamp_ns, delta_rad, speed_rad_s), p_elec) = complete
+        return self.measurement(stamp_ns, delta_rad, speed_rad_s, reference_ns, arrival_ns, p_elec, coi_rad)
+
     def measurement(self, stamp_ns: int, delta_rad: float, speed_rad_s: float, reference_ns: int,
-                    arrival_ns: int, p_elec_pu: float = math.nan) -> Answer | None:
+                    arrival_ns: int, p_elec_pu: float = math.nan, coi_rad: float = 0.0) -> Answer | None:
         """The answer to one measurement, or None if the gate dropped it.
 
-        ``p_elec_pu``, the measured electrical power, is used when g is measured (and must then be finite).
+        ``p_elec_pu``, the measured electrical power, is used when g is measured (and must then be finite);
+        ``coi_rad``: the centre of inertia's angle d is measured against (reference coi).
         """
         if self.measures_power and not math.isfinite(p_elec_pu):
             self.gate.counts[Verdict.NON_FINITE.value] += 1
@@ -119,9 +205,9 @@ class ControllerCore:
         self.run_ended = False
         if verdict.resets:  # the law's state no longer describes the plant: restart from steady state
             self.law.reset()
-        angle_dev, x3 = delta_rad - self._reference_rad, self.law.x3
+        angle_dev, x3 = delta_rad - coi_rad - self._reference_rad, self.law.x3
         if self.measures_power:
-            power, w, saturated = self.law.step(angle_dev, self.config.plant.p_mech_pu - p_elec_pu)
+            power, w, saturated = self.law.step(angle_dev, self.config.p_mech_pu - p_elec_pu)
             return Answer(stamp_ns, power, angle_dev, speed_rad_s, x3, w, saturated, None, self.config.ctrl)
         power, w, saturated = self.law.step(angle_dev)
         return Answer(stamp_ns, power, angle_dev, speed_rad_s, x3, w, saturated, self.config.plant, self.config.ctrl)
@@ -135,3 +221,17 @@ class ControllerCore:
     def silence(self, wall_ns: int) -> int | None:
         """A stale episode starts: the stamp of the zero command to send, else None (also after a normal end)."""
         return None if self.run_ended else self.gate.silence(wall_ns)
+
+    def status(self) -> tuple[str, str, dict]:
+        """``(level, message, values)`` of the diagnostics: STALE, else WARN while a coi counter grew since the last.
+
+        The message names the coi counters that grew (after ``STALE; `` when stale: often their cause).
+        """
+        coi = {} if self.coi is None else dict(self.coi.counts)
+        grew = [name for name, count in coi.items() if count > self._reported.get(name, 0)]
+        self._reported = coi
+        level = "STALE" if self.gate.stale else "WARN" if grew else "OK"
+        message = "; ".join(([level] if level != "WARN" else []) + ([f"centre of inertia: {', '.join(grew)}"] if grew
+                                                                    else []))
+        return level, message, {"x3": self.law.x3, "battery_limit_pu": self.config.ctrl.battery_limit_pu,
+                                **self.gate.counts, **coi}

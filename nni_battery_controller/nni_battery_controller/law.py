@@ -135,8 +135,8 @@ class SampledController:
 
     Parameters
     ----------
-    plant : SmibParams
-        Supplies delta_bar and P_max for g(d).
+    plant : SmibParams or None
+        Supplies delta_bar and P_max for g(d); None where g is always given (measured).
     ctrl : ControllerParams
         Gains and the battery limit b.
     period_s : float
@@ -145,7 +145,7 @@ class SampledController:
         Controller state, pu; starts at 0 (the pre-fault steady state).
     """
 
-    plant: SmibParams
+    plant: SmibParams | None
     ctrl: ControllerParams
     period_s: float
     x3: float = 0.0
@@ -157,9 +157,10 @@ class SampledController:
         self._decay_unsaturated = math.exp(-self.period_s / self.ctrl.tau_s)
         self._decay_saturated = math.exp(-self.ctrl.alpha * self.period_s / self.ctrl.gain_k)
         # g(d) = P_max (sin(delta_bar) - sin(d + delta_bar)): the constants, computed once (asin included).
-        self._delta_bar = self.plant.delta_bar_rad
-        self._p_max = self.plant.p_max_pu
-        self._sin_delta_bar = math.sin(self._delta_bar)
+        if self.plant is not None:
+            self._delta_bar = self.plant.delta_bar_rad
+            self._p_max = self.plant.p_max_pu
+            self._sin_delta_bar = math.sin(self._delta_bar)
 
     def reset(self) -> None:
         """Back to the pre-fault steady state x3 = 0 (used when data resumes after a gap)."""
@@ -170,8 +171,8 @@ class SampledController:
 
         ``restoring_power_pu`` is g, where it is measured: for a generator in a
         network g_i = P_e,i(pre-fault) - P_e,i(measured). Without it, g is the
-        SMIB's g(d) = P_max (sin(delta_bar) - sin(d + delta_bar)) from the model.
-        The update itself is :func:`sampled_step` (the network simulation runs
+        SMIB's g(d) = P_max (sin(delta_bar) - sin(d + delta_bar)) from the model
+        (a controller without a model, ``plant`` None, must be given g). The update itself is :func:`sampled_step` (the network simulation runs
         the same function on arrays).
 
         Scalar Python arithmetic on purpose: this runs once per measurement on
@@ -186,6 +187,8 @@ class SampledController:
         if not math.isfinite(angle_dev_rad):
             raise ValueError(f"angle deviation must be finite, got {angle_dev_rad}")
         if restoring_power_pu is None:
+            if self.plant is None:
+                raise ValueError("this controller has no plant model: g must be given")
             # g(d) on Python floats (math.sin, constants from __post_init__).
             restoring_power_pu = self._p_max * (self._sin_delta_bar - math.sin(angle_dev_rad + self._delta_bar))
         elif not math.isfinite(restoring_power_pu):

@@ -43,7 +43,8 @@ def parameters() -> tuple[Spec, ...]:
         Spec("step_duration", values["step_duration"], "mechanical_step: length of the step, s (.inf: for good).",
              1e-6, math.inf),
         Spec("displace", values["displace"], "angle_displacement: rad added to the machines' angles.", -10.0, 10.0),
-        Spec("machine", values["machine"], "mechanical_step (one), angle_displacement: generator bus numbers."),
+        Spec("machine", values["machine"], "mechanical_step (one), angle_displacement: generator bus numbers.",
+             array_of=int),
     )
 
 

@@ -131,10 +131,10 @@ def publishers(node, *topics) -> list:
     return [node.create_publisher(*endpoint(topic)) for topic in topics]
 
 
-def subscribe(node, topic: str, callback):
-    """A subscription of ``node`` to a contract topic, with the contract's QoS."""
+def subscribe(node, topic: str, callback, namespace: str = ""):
+    """A subscription of ``node`` to a contract topic, with the contract's QoS; under ``namespace`` if given."""
     msg_class, name, qos = endpoint(topic)
-    return node.create_subscription(msg_class, name, callback, qos)
+    return node.create_subscription(msg_class, f"{namespace}/{name}" if namespace else name, callback, qos)
 
 
 class ContractError(ValueError):

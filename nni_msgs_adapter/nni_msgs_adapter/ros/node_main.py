@@ -76,10 +76,13 @@ class StartupError(Exception):
 def run_node(factory, args=None, prog: str = "node") -> int:
     """Construct ``factory()`` and spin it until a signal or until it reports done.
 
+    ``factory()`` returns a node or a list of nodes (a composed deployment: all
+    spin on the one executor, and all are closed and destroyed on the way out).
     A node may offer ``done`` (an rclpy Future completed when its run is over,
-    e.g. the plant after its duration) and ``close()`` (called before it is
-    destroyed, still able to publish). ``args`` are the process arguments,
-    program name first, as for ``rclpy.init`` (None: ``sys.argv``).
+    e.g. the plant after its duration; any node's ends the process) and
+    ``close()`` (called before it is destroyed, still able to publish). ``args``
+    are the process arguments, program name first, as for ``rclpy.init``
+    (None: ``sys.argv``).
     """
     try:
         user_args = remove_ros_args(sys.argv if args is None else list(args))[1:]
@@ -121,25 +124,30 @@ def run_node(factory, args=None, prog: str = "node") -> int:
         return _security_failure(exc, prog)
     for warning in held:
         warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
+    nodes = list(node) if isinstance(node, (list, tuple)) else [node]
     if own_profile is not None:
-        node.get_logger().info(f"DDS profile from {FASTDDS_PROFILES_ENV}={own_profile}: the network the node "
-                               "listens on is as that file says (the loopback-only default is not applied)")
+        nodes[0].get_logger().info(f"DDS profile from {FASTDDS_PROFILES_ENV}={own_profile}: the network the node "
+                                   "listens on is as that file says (the loopback-only default is not applied)")
     stop = []
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda number, frame: stop.append(number))
-    executor = make_executor(getattr(node, "needs_message_info", False))
-    executor.add_node(node)
-    done = getattr(node, "done", None)
+    executor = make_executor(any(getattr(each, "needs_message_info", False) for each in nodes))
+    for each in nodes:
+        executor.add_node(each)
+    dones = [each.done for each in nodes if getattr(each, "done", None) is not None]
     try:
-        while not stop and not (done is not None and done.done()):
+        while not stop and not any(done.done() for done in dones):
             executor.spin_once(timeout_sec=_SIGNAL_POLL_S)
     finally:
-        close = getattr(node, "close", None)
-        if close is not None:
-            close()
-        wait_for_acks(node)
+        for each in nodes:
+            close = getattr(each, "close", None)
+            if close is not None:
+                close()
+        for each in nodes:
+            wait_for_acks(each)
         executor.shutdown(timeout_sec=1.0)
-        node.destroy_node()
+        for each in nodes:
+            each.destroy_node()
         rclpy.try_shutdown()
     return 0
 

@@ -16,7 +16,10 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 
 @dataclass(frozen=True)
 class Spec:
-    """One parameter: name, default (its type is the parameter's), description, range."""
+    """One parameter: name, default (its type is the parameter's), description, range.
+
+    ``array_of`` (``str``, ``float`` or ``int``) makes it a string, double or integer array, whose default may be empty.
+    """
 
     name: str
     default: object
@@ -25,6 +28,7 @@ class Spec:
     high: float | None = None
     choices: tuple[str, ...] = ()
     read_only: bool = False
+    array_of: type | None = None
 
     def descriptor(self) -> ParameterDescriptor:
         """ParameterDescriptor with the range for numbers and choices in the text."""
@@ -43,23 +47,29 @@ class Spec:
 def declare(node, specs) -> None:
     """Declare every spec on ``node`` (overrides from YAML / command line apply).
 
-    A default ``[]`` declares an integer array that starts empty: rclpy would type ``[]`` as a
-    byte array (refusing ``-p name:=[2]``), and a params file's ``[]`` arrives unset.
+    An array is declared by its type (an empty default has none rclpy could infer).
     """
-    from rclpy.parameter import Parameter  # here, not at import: the parameter tables stay free of rclpy
+    from rclpy.parameter import Parameter
 
+    array_types = {str: Parameter.Type.STRING_ARRAY, float: Parameter.Type.DOUBLE_ARRAY, int: Parameter.Type.INTEGER_ARRAY}
     for spec in specs:
-        if spec.default != []:
-            node.declare_parameter(spec.name, spec.default, spec.descriptor())
-            continue
-        node.declare_parameter(spec.name, Parameter.Type.INTEGER_ARRAY, spec.descriptor())
-        if node.get_parameter_or(spec.name).type_ == Parameter.Type.NOT_SET:
-            node.set_parameters([Parameter(spec.name, Parameter.Type.INTEGER_ARRAY, [])])
+        value = array_types[spec.array_of] if spec.array_of and not spec.default else spec.default
+        node.declare_parameter(spec.name, value, spec.descriptor())
 
 
 def current_values(node, specs) -> dict:
-    """``{name: value}`` of the declared parameters."""
-    return {spec.name: node.get_parameter(spec.name).value for spec in specs}
+    """``{name: value}`` of the declared parameters (arrays as lists, an unset one empty)."""
+    from rclpy.exceptions import ParameterUninitializedException
+
+    values = {}
+    for spec in specs:
+        try:
+            values[spec.name] = node.get_parameter(spec.name).value
+        except ParameterUninitializedException:  # an array declared by its type and never given
+            values[spec.name] = []
+        if spec.array_of:
+            values[spec.name] = list(values[spec.name])
+    return values
 
 
 def check_choices(values: dict, specs) -> None:

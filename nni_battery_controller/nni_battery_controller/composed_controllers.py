@@ -1,0 +1,57 @@
+"""Composed controllers: one controller node per generator namespace, all in one process on one executor.
+
+What a utility would run on one substation computer (issue 14): the controller_node of each namespace in
+parameter ``namespaces``, each with its own parameters, parameter services and diagnostics, as if started
+alone with ``-r __ns:=<namespace>``. Per-node values come from a params file with one section per node
+(``/gen1/controller: ros__parameters: ...``; ``/**/controller`` for what they share); a ``-p`` on the
+command line applies to every node. SIGINT or SIGTERM stops them all cleanly (final diagnostics, last
+commands acknowledged), as for one node.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from rclpy.exceptions import ParameterException
+from rclpy.node import Node
+
+from nni_battery_controller import controller_config
+from nni_battery_controller.controller_node import ControllerNode
+from nni_msgs_adapter.ros.node_main import run_node
+from nni_msgs_adapter.ros.ros_params import Spec, current_values, declare
+
+#: The host node's name (it holds ``namespaces`` and nothing else).
+HOST_NAME = "composed_controllers"
+NAMESPACES = Spec("namespaces", [], "The generators' absolute namespaces (/gen1, ...): one controller node "
+                  "<namespace>/controller each, with the controller_node parameters below.", array_of=str)
+
+
+def parameters() -> tuple[Spec, ...]:
+    """What ``--help`` lists: ``namespaces``, then every controller node's parameters."""
+    return (NAMESPACES, *controller_config.parameters())
+
+
+def compose() -> list[Node]:
+    """The host node and one ControllerNode per namespace; ValueError naming the node that cannot start."""
+    host = Node(HOST_NAME)
+    declare(host, (NAMESPACES,))
+    namespaces = current_values(host, (NAMESPACES,))["namespaces"]
+    if not namespaces:
+        raise ValueError("namespaces is empty: give the generators' namespaces, e.g. -p namespaces:=\"['/gen1']\"")
+    controller_config.check_namespaces("namespaces", namespaces)
+    nodes = [host]
+    for namespace in namespaces:
+        try:
+            nodes.append(ControllerNode(namespace=namespace))
+        except (ValueError, ParameterException) as exc:
+            raise ValueError(f"{namespace}/controller: {exc}") from None
+    return nodes
+
+
+def main(args=None) -> int:
+    """``ros2 run nni_battery_controller composed_controllers``."""
+    return run_node(compose, args, prog="composed_controllers")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
