@@ -27,6 +27,13 @@ def test_the_silence_after_the_plants_end_of_run_is_no_stale_episode():
     assert core.gate.counts["stale_episodes"] == 0
 
 
+def test_in_lockstep_wall_clock_silence_is_no_stale_episode_until_the_plants_clock_is_gone():
+    """A lockstep plant that is slow (a loaded machine) holds simulated time still: no stand-down."""
+    core = core_after_one_measurement()
+    assert core.silence(NOW + 500 * MS, lockstep_clock=True) is None and not core.gate.stale
+    assert core.silence(NOW + 600 * MS, lockstep_clock=False) == NOW + 600 * MS and core.gate.stale
+
+
 def test_a_measurement_after_the_end_notice_cancels_it():
     """A false or early notice spares the stand-down only for the silence right after it."""
     core = core_after_one_measurement()

@@ -218,9 +218,14 @@ class ControllerCore:
         self.run_ended = True
         return news
 
-    def silence(self, wall_ns: int) -> int | None:
-        """A stale episode starts: the stamp of the zero command to send, else None (also after a normal end)."""
-        return None if self.run_ended else self.gate.silence(wall_ns)
+    def silence(self, wall_ns: int, lockstep_clock: bool = False) -> int | None:
+        """A stale episode starts: the stamp of the zero command to send, else None (also after a normal end).
+
+        ``lockstep_clock``: a plant publishes ``/clock``. Its simulated time stands still between
+        measurements (the plant waits for this answer), so wall-clock silence is no loss of data
+        and nothing stands down; once that plant is gone (its /clock writer left), the wall clock counts.
+        """
+        return None if self.run_ended or lockstep_clock else self.gate.silence(wall_ns)
 
     def status(self) -> tuple[str, str, dict]:
         """``(level, message, values)`` of the diagnostics: STALE, else WARN while a coi counter grew since the last.

@@ -64,7 +64,7 @@ class ControllerNode(Node):
                                    "measurements: waiting for the next run")
 
     def _check_stale(self) -> None:
-        stamp_ns = self._core.silence(self.get_clock().now().nanoseconds)
+        stamp_ns = self._core.silence(self.get_clock().now().nanoseconds, self._clock_sub.get_publisher_count() > 0)
         if stamp_ns is not None:
             self._command_pub.publish(contract.command_message(stamp_ns, 0.0))
             self.get_logger().warning(f"no measurement for {self._core.config.stale_after_s:g} s: battery power set to zero")
