@@ -28,7 +28,7 @@ from nni_battery_controller.network_sim import NetworkLaw, assess_network, simul
 from nni_msgs_adapter.recording.mcap_io import read_recording
 from nni_msgs_adapter.recording.runs import generator_runs, run_metadata
 from nni_plant_sim.cases import load_network
-from nni_plant_sim.network_scenarios import BusFault
+from nni_plant_sim.network_scenarios import AngleDisplacement, BusFault
 from rosproc import busy_processes, fresh_domain_id, node_processes, ros_env
 
 pytestmark = pytest.mark.ros
@@ -170,6 +170,29 @@ def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_an
     assert (tmp_path / "figures.png").stat().st_size > 0
 
 
+def test_coi_reference_and_a_displacement_run_as_offline(tmp_path):
+    """--reference coi (every controller reads every PMU) with --scenario angle_displacement: the recorded
+    angles are the offline sampled simulation's with the same law and scenario to 1e-12."""
+    domain = fresh_domain_id()
+    result, children, marker = run_demo(["--case", "kundur_two_area", "--reference", "coi", "--scenario",
+                                         "angle_displacement", "--machine", "1", "--displace", "0.3", "--b", "0.1",
+                                         "--duration", "1", "--out", str(tmp_path)], domain)
+    assert result.returncode == 0, result.stderr
+    assert_nothing_left(children, marker)
+    assert "angle reference coi" in result.stdout, result.stdout
+    net = load_network("kundur_two_area")
+    defaults = default_law(net)
+    law = NetworkLaw.uniform(net, defaults.tau_s, defaults.gain_k, defaults.gain_l, defaults.alpha, reference="coi")
+    offline = simulate_network(net, law, AngleDisplacement(np.array([0.3, 0.0, 0.0, 0.0])), [np.full(4, 0.1)],
+                               1.0, 50.0)
+    (run,) = json.loads((tmp_path / "summary.json").read_text())["runs"]
+    assert run["reference"] == "coi"
+    runs = generator_runs(read_recording(run["recording"]))
+    for i, generator in enumerate(runs.values()):
+        np.testing.assert_allclose(generator.delta_rad, offline.delta_rad[:, i, 0], rtol=0, atol=1e-12)
+    assert max(abs(g.battery_power_pu).max() for g in runs.values()) > 0, "the batteries acted"
+
+
 def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
     """The issue's Done-when: ten controller processes, per-generator results, no process left (1 s lockstep).
 
@@ -201,7 +224,8 @@ def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["--case", "kundur_two_area", "--rerun", "save", "x.rrd"], "--rerun does not apply to --case"),
     (["--case", "kundur_two_area", "--H", "4"], "--H does not apply to --case: the machines"),
-    (["--case", "ieee39", "--reference", "coi"], "--reference does not apply to --case"),
+    (["--case", "ieee39", "--scenario", "angle_displacement", "--displace", "0.3"],
+     "--scenario angle_displacement needs --machine BUS"),
     (["--case", "kundur_two_area", "--params-file", "x.yaml"], "--params-file does not apply to --case"),
     (["--case", "kundur_two_area", "--scenario", "line_trip", "--trip-line", "7", "8", "--clearing-time", "0.2"],
      "--clearing-time does not apply to --scenario line_trip"),
@@ -209,7 +233,7 @@ def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
     (["--case", "kundur_two_area", "--gen-b", "5=0.1"], "--gen-b 5=0.1: no generator 5 (the case has gen1 .. gen4)"),
     (["--case", "kundur_two_area", "--K", "1", "1", "1", "2"], "generator G4@4: K must be less than L"),
     (["--gen-b", "2=0.1"], "--gen-b applies to a network of generators only"),
-    (["--case", "kundur_two_area", "--duration", "1e-9"], "network plant parameter duration_s = 1e-09 is outside"),
+    (["--case", "kundur_two_area", "--clearing-time", "2000"], "network plant parameter clearing_time = 2000 is outside"),
     (["--case", "kundur_two_area", "--tau", "1e-5"], "controller parameter tau_s = 1e-05 is outside 0.0001..100"),
 ])
 def test_an_option_that_does_not_apply_is_refused_with_one_line(tmp_path, args, message):
@@ -228,12 +252,12 @@ def test_per_generator_limits_and_the_model_check_of_a_machine_at_full_power():
                            (["2=0.1", "2=0.3"], "given twice"), (["x=1"], "takes I=B")):
         with pytest.raises(ValueError, match=message):
             generator_limits(words, 4)
-    # A machine at (or above) the controller's default P_max: the node would refuse P_M >= P_max.
+    # A machine at (or above) the controller's default P_max (1 pu): in measured mode the node has no SMIB model to refuse it.
     net = SimpleNamespace(mbase_mva=np.array([500.0]), base_mva=100.0, p_mech_pu=np.array([5.5]),
                           delta_bar_rad=np.array([0.4]), names=("G1",))
     law = NetworkLaw(net, np.array([0.1]), np.array([1.0]), np.array([1.1]), np.array([1.0]))
     params = controller_parameters(net, 0, 0.1, 50.0, law)
-    assert params["p_mech_pu"] == pytest.approx(1.1) and params["p_max_pu"] > params["p_mech_pu"]
+    assert params["p_mech_pu"] == pytest.approx(1.1) and "p_max_pu" not in params
     from nni_battery_controller.controller_config import ControllerConfig, parameters
 
     ControllerConfig({**{spec.name: spec.default for spec in parameters()}, **params})  # accepted by the node's check

@@ -41,19 +41,35 @@ from nni_msgs_adapter.ros.cli_support import (
     writable_output,
 )
 from nni_plant_sim.cases import CASES, load_network
-from nni_plant_sim.network_scenarios import AngleDisplacement, BusFault, LineTrip, MechanicalStep
+from nni_plant_sim.network_scenarios import (
+    NETWORK_SCENARIOS,
+    SCENARIO_PARAMETERS as SCENARIO_OPTIONS,
+    AngleDisplacement,
+    BusFault,
+    LineTrip,
+    MechanicalStep,
+)
 
-NETWORK_SCENARIOS = ("bus_fault", "line_trip", "mechanical_step", "angle_displacement")
 #: Fault bus when --fault-bus is not given: a load bus of each shipped case.
 DEFAULT_FAULT_BUS = {"kundur_two_area": 7, "ieee39": 16}
 DEFAULT_LIMITS = (0.0, 0.1, 0.3, math.inf)
-#: Which scenario each scenario-specific option belongs to (an option given for another is refused).
-SCENARIO_OPTIONS = {
-    "fault_bus": ("bus_fault",), "fault_r": ("bus_fault",), "fault_x": ("bus_fault",),
-    "clearing_time": ("bus_fault",), "trip_line": ("bus_fault", "line_trip"),
-    "step_p_mech": ("mechanical_step",), "step_duration": ("mechanical_step",),
-    "displace": ("angle_displacement",), "machine": ("mechanical_step", "angle_displacement"),
-}
+
+
+def add_scenario_options(group) -> None:
+    """The disturbance options of a network (``nni-simulate --case`` and ``nni-demo --case``)."""
+    group.add_argument("--scenario", choices=NETWORK_SCENARIOS, default="bus_fault")
+    group.add_argument("--fault-bus", type=int, help="bus of the three-phase fault (default: 7 Kundur, 16 IEEE 39)")
+    group.add_argument("--fault-r", type=float_within(0.0, 1e6, "pu"), help="fault resistance, pu system base (0)")
+    group.add_argument("--fault-x", type=finite_float, help="fault reactance, pu system base (0: bolted)")
+    group.add_argument("--clearing-time", type=positive_float, help="fault duration, s (default 0.1)")
+    group.add_argument("--trip-line", type=int, nargs="+", metavar="BUS",
+                       help="FROM TO [CIRCUIT]: the branch that opens (at clearing, or at t = 0 for line_trip)")
+    group.add_argument("--step-p-mech", type=float_within(0.0, 100.0, "pu"),
+                       help="mechanical_step: the machine's P_m during the step, pu of its rating")
+    group.add_argument("--step-duration", type=positive_float, help="mechanical_step: s (default: for good)")
+    group.add_argument("--displace", type=finite_float, help="angle_displacement: rad added to --machine angles")
+    group.add_argument("--machine", type=int, nargs="+", metavar="BUS",
+                       help="generator bus(es) of mechanical_step (one) or angle_displacement")
 
 
 def build_parser() -> OneLineParser:
@@ -63,19 +79,7 @@ def build_parser() -> OneLineParser:
                         help=f"a shipped case ({', '.join(CASES)}) or a MATPOWER .m file (with --machines, --f0)")
     parser.add_argument("--machines", help="machine data CSV for a MATPOWER case file (see nni_plant_sim/cases)")
     parser.add_argument("--f0", type=positive_float, help="nominal frequency, Hz (shipped cases: 60)")
-    parser.add_argument("--scenario", choices=NETWORK_SCENARIOS, default="bus_fault")
-    parser.add_argument("--fault-bus", type=int, help="bus of the three-phase fault (default: 7 Kundur, 16 IEEE 39)")
-    parser.add_argument("--fault-r", type=float_within(0.0, 1e6, "pu"), help="fault resistance, pu system base (0)")
-    parser.add_argument("--fault-x", type=finite_float, help="fault reactance, pu system base (0: bolted)")
-    parser.add_argument("--clearing-time", type=positive_float, help="fault duration, s (default 0.1)")
-    parser.add_argument("--trip-line", type=int, nargs="+", metavar="BUS",
-                        help="FROM TO [CIRCUIT]: the branch that opens (at clearing, or at t = 0 for line_trip)")
-    parser.add_argument("--step-p-mech", type=float_within(0.0, 100.0, "pu"),
-                        help="mechanical_step: the machine's P_m during the step, pu of its rating")
-    parser.add_argument("--step-duration", type=positive_float, help="mechanical_step: s (default: for good)")
-    parser.add_argument("--displace", type=finite_float, help="angle_displacement: rad added to --machine angles")
-    parser.add_argument("--machine", type=int, nargs="+", metavar="BUS",
-                        help="generator bus(es) of mechanical_step (one) or angle_displacement")
+    add_scenario_options(parser)
     parser.add_argument("--b", type=battery_limit, nargs="+", default=list(DEFAULT_LIMITS), metavar="B",
                         help="battery limits, pu of each machine's rating ('inf' allowed); default 0 0.1 0.3 inf")
     parser.add_argument("--reference", choices=ANGLE_REFERENCES, nargs="+", default=["pmu"],

@@ -41,18 +41,25 @@ from nni_battery_controller.demo import (
     write_summary,
 )
 from nni_battery_controller.controller_config import parameters as controller_node_parameters
-from nni_battery_controller.network_cli import DEFAULT_LIMITS, SCENARIO_OPTIONS, format_run, make_scenario, plot_network
+from nni_battery_controller.network_cli import (
+    DEFAULT_LIMITS,
+    SCENARIO_OPTIONS,
+    add_scenario_options,
+    format_run,
+    make_scenario,
+    plot_network,
+)
 from nni_battery_controller.network_deployment import (
-    SCENARIOS,
     battery_limits,
     controller_parameters,
     default_law,
     generator_limits,
     namespaces,
     plant_parameters,
+    pmu_readers,
     scenario_parameters,
 )
-from nni_battery_controller.network_sim import NetworkLaw, assess_network
+from nni_battery_controller.network_sim import ANGLE_REFERENCES, NetworkLaw, assess_network
 from nni_msgs_adapter.recording.runs import network_trajectory, read_generator_runs
 from nni_msgs_adapter.ros.cli_support import (
     CliError,
@@ -70,8 +77,6 @@ from nni_plant_sim.network_plant_node import SUMMARY_PREFIX, parameters as plant
 PROG = "nni-demo"
 PLANT = "nni_plant_sim.network_plant_node"
 CONTROLLER = "nni_battery_controller.controller_node"
-#: The angle reference the controllers use (their own PMU angle against the nominal-frequency reference).
-REFERENCE = "pmu"
 #: (option dest, NetworkLaw field) of each gain.
 GAINS = (("tau", "tau_s"), ("gain_k", "gain_k"), ("gain_l", "gain_l"), ("alpha", "alpha"))
 #: The plant's counters shown per generator: the trust counters (any non-zero one compromises a run) and
@@ -79,8 +84,6 @@ GAINS = (("tau", "tau_s"), ("gain_k", "gain_k"), ("gain_l", "gain_l"), ("alpha",
 SHOWN_COUNTERS = (*TRUST_COUNTERS, "expired_commands", "invalid_commands", "clipped_commands")
 
 _SMIB_MODEL = "the machines, their data and their operating point come from the case"
-_NOT_RUN = ("the network plant node does not run mechanical_step or angle_displacement (offline: "
-            "nni-simulate --case CASE --scenario mechanical_step | angle_displacement)")
 #: Options of the SMIB demo (or of the offline network study) that a networked run cannot honour, and why.
 REFUSED = {
     "--rerun": "the Rerun bridge has no per-generator view in this build (its namespaces parameter); the "
@@ -90,10 +93,6 @@ REFUSED = {
     **{flag: _SMIB_MODEL for flag in ("--H", "--D", "--P-M", "--P-max", "--f0")},
     **{flag: "it belongs to a scenario of the SMIB demo; a network runs --scenario bus_fault or line_trip"
        for flag in ("--delta0", "--speed0", "--fault-p-max")},
-    **{flag: _NOT_RUN for flag in ("--step-p-mech", "--step-duration", "--machine", "--displace")},
-    "--reference": "the controllers measure their angle against their PMU's reference (pmu); the centre-of-"
-                   "inertia reference over DDS is not in this build (offline: nni-simulate --case CASE "
-                   "--reference coi)",
 }
 
 
@@ -116,14 +115,10 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder, created (default: out/demo)")
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
-    scenario = parser.add_argument_group("disturbance at t = 0 (as nni-simulate --case)")
-    scenario.add_argument("--scenario", choices=SCENARIOS, default="bus_fault")
-    scenario.add_argument("--fault-bus", type=int, help="bus_fault: the faulted bus (default: 7 Kundur, 16 IEEE 39)")
-    scenario.add_argument("--fault-r", type=float_within(0.0, 1e6, "pu"), help="bus_fault: resistance, pu system base (0)")
-    scenario.add_argument("--fault-x", type=finite_float, help="bus_fault: reactance, pu system base (0: bolted)")
-    scenario.add_argument("--clearing-time", type=positive_float, help="bus_fault: fault duration, s (default 0.1)")
-    scenario.add_argument("--trip-line", type=int, nargs="+", metavar="BUS",
-                          help="FROM TO [CIRCUIT]: the branch that opens (at clearing, or at t = 0 for line_trip)")
+    parser.add_argument("--reference", choices=ANGLE_REFERENCES, default="pmu",
+                        help="the controllers' angle reference: pmu (own angle vs nominal frequency; default) or coi "
+                             "(relative to the centre of inertia: each controller reads every generator's PMU)")
+    add_scenario_options(parser.add_argument_group("disturbance at t = 0 (as nni-simulate --case)"))
     gains = parser.add_argument_group("controller gains (pu of each machine's rating; one value or one per generator; "
                                       "default: the controller node's)")
     for (dest, _), flag, text in zip(GAINS, ("--tau", "--K", "--L", "--alpha"), ("tau, s", "K, pu/rad", "L, pu/rad",
@@ -149,13 +144,14 @@ def parse_arguments(argv=None):
             raise CliError(f"--{option.replace('_', '-')} does not apply to --scenario {args.scenario}")
     args.net = net = load_network(args.case)
     args.scenario_object, args.description, _ = make_scenario(net, args)
-    args.scenario_values = scenario_parameters(args.scenario_object, args.trip_line or ())
+    args.scenario_values = scenario_parameters(net, args.scenario_object, args.trip_line or ())
     defaults = default_law(net)
     args.law = NetworkLaw.uniform(net, *(getattr(defaults, name) if getattr(args, dest) is None else getattr(args, dest)
-                                         for dest, name in GAINS))
+                                         for dest, name in GAINS), reference=args.reference)
     args.gen_limits = generator_limits(args.gen_b, net.size)
     check_ranges("network plant", plant_node_parameters(),
-                 plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration))
+                 plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration,
+                                    pmu_readers(args.net, args.reference)))
     for b in args.b:
         limits = battery_limits(net.size, b, args.gen_limits)
         for i in range(net.size):
@@ -217,7 +213,8 @@ def run_one(args, b: float, env: dict):
     """One run: logger, a controller per generator, the network plant; returns (summary entry, trajectory)."""
     net, spaces = args.net, namespaces(args.net)
     limits = battery_limits(net.size, b, args.gen_limits)
-    plant_params = plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration)
+    plant_params = plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration,
+                                    pmu_readers(args.net, args.reference))
     controllers = {f"/{ns}": controller_parameters(net, i, limits[i], args.rate, args.law) for i, ns in enumerate(spaces)}
     recording = args.out / recording_name(args, b)
     logs = args.out / "logs" / recording.stem
@@ -254,7 +251,7 @@ def run_one(args, b: float, env: dict):
     outcome = assess_network(traj)[0]
     outcome_json = outcome.to_json()
     result = {"b": json_b(b), "gen_b": {f"gen{i + 1}": json_b(v) for i, v in sorted(args.gen_limits.items())},
-              "reference": REFERENCE, **{k: v for k, v in outcome_json.items() if k != "generators"},
+              "reference": args.reference, **{k: v for k, v in outcome_json.items() if k != "generators"},
               "mode": args.mode, "rate_hz": args.rate, "recording": str(recording), "wall_time_s": round(wall_s, 3),
               "generators": {ns: generator_result(g, loops[ns], counts, ns)
                              for ns, g in zip(spaces, outcome_json["generators"])}}
@@ -309,7 +306,7 @@ def main(argv=None) -> int:
         gains = ", ".join(f"{name} {'/'.join(f'{v:g}' for v in sorted(set(values.tolist())))}"
                           for name, values in (("tau", law.tau_s), ("K", law.gain_k), ("L", law.gain_l),
                                                ("alpha", law.alpha)))
-        print(f"  {args.description}; g measured, angle reference {REFERENCE}; {gains}")
+        print(f"  {args.description}; g measured, angle reference {args.reference}; {gains}")
         results, plotted = [], []
         for b in args.b:
             result, outcome, traj, limits = run_one(args, b, env)
@@ -318,7 +315,7 @@ def main(argv=None) -> int:
             if "compromised" in result:
                 print(f"  {run_label(args, b)}: {compromised_line(result, limits, spaces)}")
             else:
-                print(textwrap.indent(format_run(outcome, b, REFERENCE, net), "  "))
+                print(textwrap.indent(format_run(outcome, b, args.reference, net), "  "))
             print("\n".join(loop_table(result, net, limits) + clipped_lines(result)))
             print(f"  wall {result['wall_time_s']:.1f} s, recording {result['recording']}")
         summary = write_summary(args.out, {

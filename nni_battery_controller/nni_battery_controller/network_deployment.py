@@ -16,15 +16,11 @@ import math
 
 import numpy as np
 
+from nni_battery_controller.controller_config import generator_parameters
 from nni_battery_controller.network_cli import DEFAULT_FAULT_BUS
 from nni_battery_controller.network_sim import NetworkLaw
 from nni_msgs_adapter.ros.defaults import controller_defaults
-from nni_plant_sim.network_scenarios import BusFault, LineTrip
-
-#: The disturbances the network plant node runs (of the offline study's, ``network_cli.NETWORK_SCENARIOS``).
-SCENARIOS = ("bus_fault", "line_trip")
-#: Subscribers each generator's ``pmu`` waits for before the plant starts: its controller and the MCAP logger.
-SUBSCRIBERS_PER_GENERATOR = 2
+from nni_plant_sim.network_scenarios import AngleDisplacement, BusFault, LineTrip, MechanicalStep
 
 
 def namespaces(net) -> tuple[str, ...]:
@@ -74,24 +70,14 @@ def default_law(net) -> NetworkLaw:
 
 
 def controller_parameters(net, index: int, limit_pu: float, rate_hz: float, law: NetworkLaw) -> dict:
-    """Generator ``index``'s controller node parameters (pu of its machine's rating).
+    """Generator ``index``'s controller node parameters (pu of its machine's rating), its angle reference the law's.
 
-    ``p_mech_pu`` is the machine's pre-fault mechanical power, which the pre-fault
-    electrical power equals; ``reference_angle_rad`` its pre-fault angle. The
-    node's SMIB model fields enter neither g (measured) nor the law, but the node
-    still checks P_M < P_max: where the default P_max would not exceed the
-    machine's P_m (IEEE 39's G10 runs at 1.0 pu of its rating), P_max is given
-    as twice P_m.
+    g measured (no SMIB model: IEEE 39's G10 at 1.0 pu of its rating runs as any other machine);
+    :func:`controller_config.generator_parameters` gives the generator's own values.
     """
-    scale = float(net.mbase_mva[index] / net.base_mva)
-    p_mech = float(net.p_mech_pu[index]) / scale
-    params = {"restoring_power": "measured", "reference_angle_rad": float(net.delta_bar_rad[index]),
-              "p_mech_pu": p_mech, "battery_limit_pu": float(limit_pu), "sample_rate_hz": float(rate_hz),
-              "tau_s": float(law.tau_s[index]), "gain_k": float(law.gain_k[index]),
-              "gain_l": float(law.gain_l[index]), "alpha": float(law.alpha[index])}
-    if p_mech >= controller_defaults()["p_max_pu"]:
-        params["p_max_pu"] = 2.0 * p_mech
-    return params
+    return {**generator_parameters(net, index, law.reference), "battery_limit_pu": float(limit_pu),
+            "sample_rate_hz": float(rate_hz), "tau_s": float(law.tau_s[index]), "gain_k": float(law.gain_k[index]),
+            "gain_l": float(law.gain_l[index]), "alpha": float(law.alpha[index])}
 
 
 def default_fault_bus(case: str) -> int:
@@ -99,8 +85,8 @@ def default_fault_bus(case: str) -> int:
     return DEFAULT_FAULT_BUS[case]
 
 
-def scenario_parameters(scenario, trip_line=()) -> dict:
-    """The network plant node's scenario parameters for a BusFault or LineTrip (``trip_line``: FROM TO [CIRCUIT])."""
+def scenario_parameters(net, scenario, trip_line=()) -> dict:
+    """The network plant node's scenario parameters for an offline scenario of ``net`` (``trip_line``: FROM TO [CIRCUIT])."""
     trip = {"trip_line": " ".join(map(str, trip_line))} if trip_line else {}
     if isinstance(scenario, LineTrip):
         return {"scenario": "line_trip", **trip}
@@ -108,10 +94,26 @@ def scenario_parameters(scenario, trip_line=()) -> dict:
         return {"scenario": "bus_fault", "fault_bus": int(scenario.bus), "fault_r": float(scenario.impedance_pu.real),
                 "fault_x": float(scenario.impedance_pu.imag), "clearing_time": float(scenario.clearing_time_s),
                 **trip}
+    if isinstance(scenario, MechanicalStep):  # the node takes P_m in pu of the machine's rating, as the CLI
+        scale = float(net.mbase_mva[scenario.machine] / net.base_mva)
+        return {"scenario": "mechanical_step", "step_p_mech": scenario.p_mech_pu / scale,
+                "step_duration": float(scenario.duration_s), "machine": [int(net.gen_bus[scenario.machine])]}
+    if isinstance(scenario, AngleDisplacement):
+        moved = np.flatnonzero(scenario.displacement_rad)
+        return {"scenario": "angle_displacement",
+                "displace": float(scenario.displacement_rad[moved[0]]) if moved.size else 0.0,
+                "machine": [int(net.gen_bus[i]) for i in moved]}
     raise ValueError(f"the network plant node does not run {type(scenario).__name__}")
 
 
-def plant_parameters(case: str, scenario_values: dict, mode: str, rate_hz: float, duration_s: float) -> dict:
-    """The network plant node's parameters for one run (it waits for each generator's controller and the logger)."""
+def pmu_readers(net, reference: str) -> int:
+    """Subscribers each generator's ``pmu`` has before the plant starts: the MCAP logger and its controller, or
+    with the centre-of-inertia reference every controller (each reads every generator's PMU)."""
+    return 1 + (net.size if reference == "coi" else 1)
+
+
+def plant_parameters(case: str, scenario_values: dict, mode: str, rate_hz: float, duration_s: float,
+                     readers: int = 2) -> dict:
+    """The network plant node's parameters for one run (it waits for ``readers`` on each generator's pmu)."""
     return {"case": case, **scenario_values, "mode": mode, "pmu_rate_hz": float(rate_hz),
-            "duration_s": float(duration_s), "wait_for_subscribers": SUBSCRIBERS_PER_GENERATOR}
+            "duration_s": float(duration_s), "wait_for_subscribers": int(readers)}
