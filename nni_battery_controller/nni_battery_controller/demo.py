@@ -266,6 +266,18 @@ def wait_for_plant(plant, args, label: str, limit_s: float, prefix: str = SUMMAR
         print("\r\033[K", end="", file=sys.stderr, flush=True)
 
 
+def finish_plant(procs, plant, args, label: str, prefix: str = SUMMARY_PREFIX) -> None:
+    """The plant's run to its end (bounded wait), its clean exit, then the drain for the recorders; else CliError."""
+    wait_for_plant(plant, args, label, run_time_limit_s(args), prefix)
+    try:
+        status = plant.wait_exit(procs.grace_s)
+    except ChildError as error:
+        raise CliError(str(error)) from None
+    if status != 0:
+        raise CliError(f"the {plant.name} exited with status {status}: {plant.tail()}")
+    time.sleep(DRAIN_S)
+
+
 def run_time_limit_s(args) -> float:
     """Longest wall time a plant may take for one run (start-up and discovery included)."""
     return 60.0 + (args.duration if args.mode == "realtime" else args.duration * 2)
@@ -312,14 +324,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
             "run_metadata": json.dumps(run_metadata(args, plant_params, controller_params))})
         controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params)
         plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params)
-        wait_for_plant(plant, args, f"b = {b:<5g}", run_time_limit_s(args))
-        try:
-            status = plant.wait_exit(procs.grace_s)
-        except ChildError as error:
-            raise CliError(str(error)) from None
-        if status != 0:
-            raise CliError(f"the plant exited with status {status}: {plant.tail()}")
-        time.sleep(DRAIN_S)
+        finish_plant(procs, plant, args, f"b = {b:<5g}")
         controller.stop()
         if logger.stop() != 0:
             raise CliError(f"the logger failed: {logger.tail()}")

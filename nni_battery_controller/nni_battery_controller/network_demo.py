@@ -26,18 +26,16 @@ from pathlib import Path
 
 from nni_battery_controller.demo import (
     COMPROMISED_PREFIX,
-    DRAIN_S,
     TRUST_COUNTERS,
     compromised_reasons,
     compromised_words,
     exit_status,
+    finish_plant,
     given_options,
     logger_counts,
     plant_summary,
     run_environment,
-    run_time_limit_s,
     software_version,
-    wait_for_plant,
     write_summary,
 )
 from nni_battery_controller.controller_config import parameters as controller_node_parameters
@@ -70,7 +68,7 @@ from nni_msgs_adapter.ros.cli_support import (
     positive_float,
     run_cli,
 )
-from nni_msgs_adapter.ros.processes import ChildError, Supervisor
+from nni_msgs_adapter.ros.processes import Supervisor
 from nni_plant_sim.cases import CASES, load_network
 from nni_plant_sim.network_plant_node import SUMMARY_PREFIX, parameters as plant_node_parameters
 
@@ -226,14 +224,7 @@ def run_one(args, b: float, env: dict):
         started_controllers = [procs.start_node(f"controller_{ns}", CONTROLLER, controllers[f"/{ns}"],
                                                 ("-r", f"__ns:=/{ns}")) for ns in spaces]
         plant = procs.start_node("network_plant", PLANT, plant_params)
-        wait_for_plant(plant, args, run_label(args, b), run_time_limit_s(args), SUMMARY_PREFIX)
-        try:
-            status = plant.wait_exit(procs.grace_s)
-        except ChildError as error:
-            raise CliError(str(error)) from None
-        if status != 0:
-            raise CliError(f"the network plant exited with status {status}: {plant.tail()}")
-        time.sleep(DRAIN_S)
+        finish_plant(procs, plant, args, run_label(args, b), SUMMARY_PREFIX)
         for controller in started_controllers:
             controller.stop()
         if logger.stop() != 0:
