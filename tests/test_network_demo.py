@@ -30,6 +30,7 @@ from nni_msgs_adapter.recording.runs import generator_runs, run_metadata
 from nni_plant_sim.cases import load_network
 from nni_plant_sim.network_scenarios import AngleDisplacement, BusFault
 from rosproc import busy_processes, fresh_domain_id, node_processes, ros_env
+from test_rerun_view import read_entities, scalars
 
 pytestmark = pytest.mark.ros
 
@@ -193,6 +194,24 @@ def test_coi_reference_and_a_displacement_run_as_offline(tmp_path):
     assert max(abs(g.battery_power_pu).max() for g in runs.values()) > 0, "the batteries acted"
 
 
+def test_kundur_demo_streams_every_generator_live_to_rerun(tmp_path):
+    """--rerun save: the bridge (namespaces and case from the demo) holds every answered sample of every
+    generator, on the run's simulated time axis; two busy processes beside it."""
+    domain, live = fresh_domain_id(), tmp_path / "live.rrd"
+    with busy_processes(2):
+        result, children, marker = run_demo(["--case", "kundur_two_area", "--b", "0.1", "--duration", "1",
+                                             "--rerun", "save", str(live), "--out", str(tmp_path / "o")], domain)
+    assert result.returncode == 0, result.stderr
+    assert_nothing_left(children, marker)
+    assert str(live) in result.stdout.splitlines()[-1], result.stdout
+    (run,) = json.loads((tmp_path / "o" / "summary.json").read_text())["runs"]
+    entities = read_entities(live)
+    for ns, generator in generator_runs(read_recording(run["recording"])).items():
+        t, _ = scalars(entities[f"/angle_coi/{ns[1:]}"])
+        assert t.size == generator.answered.sum() == 50, ns
+        np.testing.assert_allclose(t, generator.t_s[generator.answered], rtol=0, atol=1e-9)
+
+
 def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
     """The issue's Done-when: ten controller processes, per-generator results, no process left (1 s lockstep).
 
@@ -222,7 +241,6 @@ def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--case", "kundur_two_area", "--rerun", "save", "x.rrd"], "--rerun does not apply to --case"),
     (["--case", "kundur_two_area", "--H", "4"], "--H does not apply to --case: the machines"),
     (["--case", "ieee39", "--scenario", "angle_displacement", "--displace", "0.3"],
      "--scenario angle_displacement needs --machine BUS"),

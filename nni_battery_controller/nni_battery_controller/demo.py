@@ -81,9 +81,7 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--rate", type=float_within(10.0, 1000.0, "frames/s"), default=rate,
                         help=f"PMU reporting rate, frames/s (default: {rate:g})")
     parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder, created (default: out/demo)")
-    parser.add_argument("--rerun", nargs="+", metavar=("SINK", "PATH"), default=None,
-                        help="stream the runs live to Rerun: 'save PATH' (.rrd), 'serve' (web viewer on this "
-                             "machine, kept up until Ctrl-C) or 'spawn' (native viewer, needs a display); default: none")
+    add_rerun_option(parser)
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
     parser.add_argument("--case", metavar="CASE",
@@ -147,6 +145,13 @@ def run_metadata(args, plant: dict, controller: dict) -> dict:
 
 
 
+def add_rerun_option(parser) -> None:
+    """``--rerun`` of the SMIB and the network demo."""
+    parser.add_argument("--rerun", nargs="+", metavar=("SINK", "PATH"), default=None,
+                        help="stream the runs live to Rerun: 'save PATH' (.rrd), 'serve' (web viewer on this "
+                             "machine, kept up until Ctrl-C) or 'spawn' (native viewer, needs a display); default: none")
+
+
 def rerun_sink(words) -> dict:
     """What ``--rerun`` asks for: save PATH | serve [ADDRESS] | spawn (ADDRESS: where the viewer listens)."""
     sink, rest = words[0], words[1:]
@@ -166,16 +171,19 @@ def rerun_sink(words) -> dict:
     return {"sink": sink}
 
 
-def start_viewer(viewer: Supervisor, sink: dict, f0_hz: float):
-    """Start the Rerun bridge (and for ``serve`` the web viewer it streams to); return the bridge."""
-    params = {**sink, "f0_hz": f0_hz}
+def start_viewer(viewer: Supervisor, sink: dict, f0_hz: float, **network):
+    """Start the Rerun bridge (and for ``serve`` the web viewer it streams to); return the bridge.
+
+    ``network``: the bridge's ``namespaces`` and ``case`` for a network's generators.
+    """
+    params = {**sink, "f0_hz": f0_hz, **network}
     if sink["sink"] == "serve":
         # The SDK's own server listens on every interface; the rerun CLI's binds where it is told.
         host = sink["address"]
         viewer.start("rerun_viewer", [str(Path(sys.executable).parent / "rerun"), "--serve-web", "--bind", host,
                                       "--port", str(SERVE_GRPC_PORT), "--web-viewer-port", str(SERVE_WEB_PORT)])
         proxy = f"rerun+http://{host}:{SERVE_GRPC_PORT}/proxy"
-        params = {"sink": "connect", "url": proxy, "f0_hz": f0_hz}
+        params = {"sink": "connect", "url": proxy, "f0_hz": f0_hz, **network}
         wait_for_port(viewer["rerun_viewer"], host, SERVE_GRPC_PORT)
         print(f"Rerun web viewer: http://{host}:{SERVE_WEB_PORT}/?url={urllib.parse.quote(proxy, safe='')}",
               flush=True)

@@ -25,17 +25,22 @@ import time
 from pathlib import Path
 
 from nni_battery_controller.demo import (
+    BRIDGE_WAIT_S,
     COMPROMISED_PREFIX,
     TRUST_COUNTERS,
     compromised_reasons,
     compromised_words,
+    add_rerun_option,
     exit_status,
     finish_plant,
     given_options,
     logger_counts,
     plant_summary,
+    rerun_sink,
     run_environment,
     software_version,
+    start_viewer,
+    wait_for_interrupt,
     write_summary,
 )
 from nni_battery_controller.controller_config import parameters as controller_node_parameters
@@ -68,7 +73,8 @@ from nni_msgs_adapter.ros.cli_support import (
     positive_float,
     run_cli,
 )
-from nni_msgs_adapter.ros.processes import Supervisor
+from nni_msgs_adapter.ros.processes import ChildError, Supervisor
+from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX
 from nni_plant_sim.cases import CASES, load_network
 from nni_plant_sim.network_plant_node import SUMMARY_PREFIX, parameters as plant_node_parameters
 
@@ -84,8 +90,6 @@ SHOWN_COUNTERS = (*TRUST_COUNTERS, "expired_commands", "invalid_commands", "clip
 _SMIB_MODEL = "the machines, their data and their operating point come from the case"
 #: Options of the SMIB demo (or of the offline network study) that a networked run cannot honour, and why.
 REFUSED = {
-    "--rerun": "the Rerun bridge has no per-generator view in this build (its namespaces parameter); the "
-               "run's MCAP holds every generator",
     "--params-file": "its /**/plant and /**/controller sections describe one machine; give the gains with "
                      "--tau, --K, --L, --alpha (one value or one per generator)",
     **{flag: _SMIB_MODEL for flag in ("--H", "--D", "--P-M", "--P-max", "--f0")},
@@ -113,6 +117,7 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder, created (default: out/demo)")
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
+    add_rerun_option(parser)
     parser.add_argument("--reference", choices=ANGLE_REFERENCES, default="pmu",
                         help="the controllers' angle reference: pmu (own angle vs nominal frequency; default) or coi "
                              "(relative to the centre of inertia: each controller reads every generator's PMU)")
@@ -149,7 +154,7 @@ def parse_arguments(argv=None):
     args.gen_limits = generator_limits(args.gen_b, net.size)
     check_ranges("network plant", plant_node_parameters(),
                  plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration,
-                                    pmu_readers(args.net, args.reference)))
+                                    pmu_readers(args.net, args.reference) + (args.rerun is not None)))
     for b in args.b:
         limits = battery_limits(net.size, b, args.gen_limits)
         for i in range(net.size):
@@ -207,12 +212,39 @@ def generator_result(outcome_json: dict, loop: dict, counts: dict, namespace: st
             "logger_counts": {topic: n for topic, n in counts.items() if topic.startswith(f"/{namespace}/")}}
 
 
-def run_one(args, b: float, env: dict):
-    """One run: logger, a controller per generator, the network plant; returns (summary entry, trajectory)."""
+def wait_for_bridge(bridge, index: int, runs: dict, logs: Path) -> None:
+    """Wait until the Rerun bridge reports run ``index`` with every generator's answered samples of the recording."""
+    expected = {ns: int(run.answered.sum()) for ns, run in runs.items()}
+
+    def logged(line: str) -> tuple[int, dict]:
+        report = json.loads(line[line.find(PROGRESS_PREFIX) + len(PROGRESS_PREFIX):])
+        return report["run"], report.get("generators", {})
+
+    def complete(line: str) -> bool:
+        run, got = logged(line)
+        return run == index and all(got.get(ns, 0) >= n for ns, n in expected.items())
+
+    try:
+        bridge.wait_for_line(PROGRESS_PREFIX, BRIDGE_WAIT_S, complete)
+    except ChildError:
+        got = {}
+        for line in bridge.output().splitlines():
+            if PROGRESS_PREFIX in line and logged(line)[0] == index:
+                got = logged(line)[1]
+        short = ", ".join(f"{ns} {got.get(ns, 0)} of {n}" for ns, n in expected.items() if got.get(ns, 0) < n)
+        raise CliError(f"the Rerun stream is partial: the bridge logged {short} samples of run {index} within "
+                       f"{BRIDGE_WAIT_S:g} s (logs in {logs})") from None
+
+
+def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
+    """One run: logger, a controller per generator, the network plant; returns (summary entry, trajectory).
+
+    With a Rerun ``bridge`` (run ``index`` of its stream) the plant waits for it too, and the run ends
+    only when the bridge has logged every generator's recorded samples."""
     net, spaces = args.net, namespaces(args.net)
     limits = battery_limits(net.size, b, args.gen_limits)
     plant_params = plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration,
-                                    pmu_readers(args.net, args.reference))
+                                    pmu_readers(args.net, args.reference) + (args.rerun is not None))
     controllers = {f"/{ns}": controller_parameters(net, i, limits[i], args.rate, args.law) for i, ns in enumerate(spaces)}
     recording = args.out / recording_name(args, b)
     logs = args.out / "logs" / recording.stem
@@ -238,6 +270,8 @@ def run_one(args, b: float, env: dict):
             raise CliError(f"the recording {recording} is partial: the logger recorded {recorded} of the {sent} "
                            f"measurements the plant sent to /{ns} (logs in {logs})")
     runs = read_generator_runs(recording)
+    if bridge is not None:
+        wait_for_bridge(bridge, index, runs, logs)
     traj = network_trajectory(runs, net, [f"/{ns}" for ns in spaces], limits)
     outcome = assess_network(traj)[0]
     outcome_json = outcome.to_json()
@@ -283,6 +317,20 @@ def compromised_line(result: dict, limits, spaces) -> str:
     return COMPROMISED_PREFIX + "; ".join(where)
 
 
+def show_run(args, b: float, env: dict, bridge, index: int, plotted: list) -> dict:
+    """Run b (stream run ``index`` to ``bridge`` if any), print its table and loops; its summary entry."""
+    net, spaces = args.net, namespaces(args.net)
+    result, outcome, traj, limits = run_one(args, b, env, bridge, index)
+    plotted.append((f"{run_label(args, b)}, {args.mode}", traj, 0))
+    if "compromised" in result:
+        print(f"  {run_label(args, b)}: {compromised_line(result, limits, spaces)}")
+    else:
+        print(textwrap.indent(format_run(outcome, b, args.reference, net), "  "))
+    print("\n".join(loop_table(result, net, limits) + clipped_lines(result)))
+    print(f"  wall {result['wall_time_s']:.1f} s, recording {result['recording']}")
+    return result
+
+
 def main(argv=None) -> int:
     """Entry point of ``nni-demo --case ...`` (called by :func:`nni_battery_controller.demo.main`)."""
 
@@ -299,23 +347,23 @@ def main(argv=None) -> int:
                                                ("alpha", law.alpha)))
         print(f"  {args.description}; g measured, angle reference {args.reference}; {gains}")
         results, plotted = [], []
-        for b in args.b:
-            result, outcome, traj, limits = run_one(args, b, env)
-            results.append(result)
-            plotted.append((f"{run_label(args, b)}, {args.mode}", traj, 0))
-            if "compromised" in result:
-                print(f"  {run_label(args, b)}: {compromised_line(result, limits, spaces)}")
-            else:
-                print(textwrap.indent(format_run(outcome, b, args.reference, net), "  "))
-            print("\n".join(loop_table(result, net, limits) + clipped_lines(result)))
-            print(f"  wall {result['wall_time_s']:.1f} s, recording {result['recording']}")
+        sink = rerun_sink(args.rerun) if args.rerun else None
+        with Supervisor(env, args.out) as viewer:
+            bridge = start_viewer(viewer, sink, float(net.f0_hz), namespaces=[f"/{ns}" for ns in spaces],
+                                  case=args.case) if sink else None
+            for index, b in enumerate(args.b, start=1):  # the bridge counts its runs from 1
+                results.append(show_run(args, b, env, bridge, index, plotted))
+            if sink and sink["sink"] == "serve":
+                print("serving the Rerun stream; Ctrl-C to stop", flush=True)
+                wait_for_interrupt()
         summary = write_summary(args.out, {
             "case": args.case, "generators": list(net.names), "namespaces": list(spaces),
             "mbase_mva": net.mbase_mva.tolist(), "scenario": args.scenario_values, "description": args.description,
             "mode": args.mode, "rate_hz": args.rate, "runs": results})
         figure = args.out / "figures.png"
         plot_network(plotted, f"{args.case}: {args.description}; controllers {args.rate:g} Hz over ROS 2", figure)
-        print(f"wrote {summary}, {figure} and {len(results)} recording(s) in {args.out}")
+        written = [str(summary), str(figure)] + ([sink["path"]] if sink and sink["sink"] == "save" else [])
+        print(f"wrote {', '.join(written)} and {len(results)} recording(s) in {args.out}")
         return exit_status(PROG, results, "a battery was")
 
     return run_cli(body, PROG)
