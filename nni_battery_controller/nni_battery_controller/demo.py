@@ -286,6 +286,13 @@ def finish_plant(procs, plant, args, label: str, prefix: str = SUMMARY_PREFIX) -
     time.sleep(DRAIN_S)
 
 
+def check_complete(recording: Path, recorded: int, sent: int, logs: Path, where: str = "") -> None:
+    """CliError unless the logger recorded every measurement the plant sent (``where``: to which namespace)."""
+    if recorded < sent:
+        raise CliError(f"the recording {recording} is partial: the logger recorded {recorded} of the {sent} "
+                       f"measurements the plant sent{where} (logs in {logs})")
+
+
 def run_time_limit_s(args) -> float:
     """Longest wall time a plant may take for one run (start-up and discovery included)."""
     return 60.0 + (args.duration if args.mode == "realtime" else args.duration * 2)
@@ -339,10 +346,8 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
     wall_s = time.monotonic() - started
     counts = logger_counts(logger.output())
     summary = plant_summary(plant.output())
-    recorded, sent = sum(n for topic, n in counts.items() if topic.endswith("/pmu")), int(summary["measurements"])
-    if recorded < sent:
-        raise CliError(f"the recording {recording} is partial: the logger recorded {recorded} of the {sent} "
-                       f"measurements the plant sent (logs in {logs})")
+    check_complete(recording, sum(n for topic, n in counts.items() if topic.endswith("/pmu")),
+                   int(summary["measurements"]), logs)
     run = read_generator_run(recording)
     if bridge is not None:
         wait_for_bridge(bridge, index, run, logs)

@@ -31,6 +31,7 @@ from nni_battery_controller.demo import (
     compromised_reasons,
     compromised_words,
     add_rerun_option,
+    check_complete,
     exit_status,
     finish_plant,
     given_options,
@@ -265,10 +266,7 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
     counts = logger_counts(logger.output())
     loops = plant_summary(plant.output(), SUMMARY_PREFIX)
     for ns in spaces:
-        recorded, sent = counts.get(f"/{ns}/pmu", 0), int(loops[ns]["measurements"])
-        if recorded < sent:
-            raise CliError(f"the recording {recording} is partial: the logger recorded {recorded} of the {sent} "
-                           f"measurements the plant sent to /{ns} (logs in {logs})")
+        check_complete(recording, counts.get(f"/{ns}/pmu", 0), int(loops[ns]["measurements"]), logs, f" to /{ns}")
     runs = read_generator_runs(recording)
     if bridge is not None:
         wait_for_bridge(bridge, index, runs, logs)
