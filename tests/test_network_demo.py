@@ -171,45 +171,34 @@ def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_an
     assert (tmp_path / "figures.png").stat().st_size > 0
 
 
-def test_coi_reference_and_a_displacement_run_as_offline(tmp_path):
-    """--reference coi (every controller reads every PMU) with --scenario angle_displacement: the recorded
-    angles are the offline sampled simulation's with the same law and scenario to 1e-12."""
-    domain = fresh_domain_id()
-    result, children, marker = run_demo(["--case", "kundur_two_area", "--reference", "coi", "--scenario",
-                                         "angle_displacement", "--machine", "1", "--displace", "0.3", "--b", "0.1",
-                                         "--duration", "1", "--out", str(tmp_path)], domain)
+def test_coi_reference_and_a_displacement_run_as_offline_and_stream_every_generator_to_rerun(tmp_path):
+    """--reference coi (every controller reads every PMU) with --scenario angle_displacement and --rerun save,
+    two busy processes beside it: the recorded angles are the offline sampled simulation's with the same law
+    and scenario to 1e-12, and the .rrd holds every generator's answered samples on the run's time axis."""
+    domain, live = fresh_domain_id(), tmp_path / "live.rrd"
+    with busy_processes(2):
+        result, children, marker = run_demo(["--case", "kundur_two_area", "--reference", "coi", "--scenario",
+                                             "angle_displacement", "--machine", "1", "--displace", "0.3", "--b", "0.1",
+                                             "--duration", "1", "--rerun", "save", str(live), "--out",
+                                             str(tmp_path / "o")], domain)
     assert result.returncode == 0, result.stderr
     assert_nothing_left(children, marker)
-    assert "angle reference coi" in result.stdout, result.stdout
+    assert "angle reference coi" in result.stdout and str(live) in result.stdout.splitlines()[-1], result.stdout
     net = load_network("kundur_two_area")
     defaults = default_law(net)
     law = NetworkLaw.uniform(net, defaults.tau_s, defaults.gain_k, defaults.gain_l, defaults.alpha, reference="coi")
     offline = simulate_network(net, law, AngleDisplacement(np.array([0.3, 0.0, 0.0, 0.0])), [np.full(4, 0.1)],
                                1.0, 50.0)
-    (run,) = json.loads((tmp_path / "summary.json").read_text())["runs"]
+    (run,) = json.loads((tmp_path / "o" / "summary.json").read_text())["runs"]
     assert run["reference"] == "coi"
     runs = generator_runs(read_recording(run["recording"]))
-    for i, generator in enumerate(runs.values()):
-        np.testing.assert_allclose(generator.delta_rad, offline.delta_rad[:, i, 0], rtol=0, atol=1e-12)
-    assert max(abs(g.battery_power_pu).max() for g in runs.values()) > 0, "the batteries acted"
-
-
-def test_kundur_demo_streams_every_generator_live_to_rerun(tmp_path):
-    """--rerun save: the bridge (namespaces and case from the demo) holds every answered sample of every
-    generator, on the run's simulated time axis; two busy processes beside it."""
-    domain, live = fresh_domain_id(), tmp_path / "live.rrd"
-    with busy_processes(2):
-        result, children, marker = run_demo(["--case", "kundur_two_area", "--b", "0.1", "--duration", "1",
-                                             "--rerun", "save", str(live), "--out", str(tmp_path / "o")], domain)
-    assert result.returncode == 0, result.stderr
-    assert_nothing_left(children, marker)
-    assert str(live) in result.stdout.splitlines()[-1], result.stdout
-    (run,) = json.loads((tmp_path / "o" / "summary.json").read_text())["runs"]
     entities = read_entities(live)
-    for ns, generator in generator_runs(read_recording(run["recording"])).items():
+    for i, (ns, generator) in enumerate(runs.items()):
+        np.testing.assert_allclose(generator.delta_rad, offline.delta_rad[:, i, 0], rtol=0, atol=1e-12)
         t, _ = scalars(entities[f"/angle_coi/{ns[1:]}"])
         assert t.size == generator.answered.sum() == 50, ns
         np.testing.assert_allclose(t, generator.t_s[generator.answered], rtol=0, atol=1e-9)
+    assert max(abs(g.battery_power_pu).max() for g in runs.values()) > 0, "the batteries acted"
 
 
 def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):

@@ -86,7 +86,7 @@ def build_parser() -> OneLineParser:
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
     parser.add_argument("--case", metavar="CASE",
                         help=f"run a network of generators instead, one controller per generator ({', '.join(CASES)}; "
-                             "its options: nni-demo --case CASE --help)")
+                             "its options: nni-demo --case CASE --help; default: none, the paper's SMIB)")
     add_model_options(parser)
     return parser
 
@@ -391,9 +391,10 @@ def run_all(args, env: dict, bridge=None) -> tuple[list[dict], list[Trajectory]]
     return runs, trajectories
 
 
-def wait_for_interrupt() -> None:
-    """Block until Ctrl-C (SIGINT) or SIGTERM."""
+def wait_for_interrupt(message: str) -> None:
+    """Print ``message``, then block until Ctrl-C (SIGINT) or SIGTERM (a signal right after the message is caught too)."""
     try:
+        print(message, flush=True)
         while True:
             time.sleep(3600)
     except KeyboardInterrupt:
@@ -475,8 +476,7 @@ def main(argv=None) -> int:
             bridge = start_viewer(viewer, sink, args.model.plant["f0_hz"]) if sink else None
             runs, trajectories = run_all(args, env, bridge)
             if sink and sink["sink"] == "serve":
-                print("serving the Rerun stream; Ctrl-C to stop", flush=True)
-                wait_for_interrupt()
+                wait_for_interrupt("serving the Rerun stream; Ctrl-C to stop")
         summary = write_summary(args.out, {"scenarios": runs})
         figure = args.out / "figures.png"
         plot_runs(trajectories, runs, figure, args.model.scenario_values(), f"sampled at {args.rate:g} Hz",

@@ -352,8 +352,7 @@ def main(argv=None) -> int:
             for index, b in enumerate(args.b, start=1):  # the bridge counts its runs from 1
                 results.append(show_run(args, b, env, bridge, index, plotted))
             if sink and sink["sink"] == "serve":
-                print("serving the Rerun stream; Ctrl-C to stop", flush=True)
-                wait_for_interrupt()
+                wait_for_interrupt("serving the Rerun stream; Ctrl-C to stop")
         summary = write_summary(args.out, {
             "case": args.case, "generators": list(net.names), "namespaces": list(spaces),
             "mbase_mva": net.mbase_mva.tolist(), "scenario": args.scenario_values, "description": args.description,

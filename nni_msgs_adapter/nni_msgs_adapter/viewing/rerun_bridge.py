@@ -45,6 +45,7 @@ import functools
 import json
 import math
 import sys
+import time
 
 import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor
@@ -105,6 +106,10 @@ PROGRESS_PREFIX = "rerun bridge run: "
 URL_TEXT = "Rerun web viewer:"
 #: How often the bridge looks for a plant and a controller, and reports progress, s.
 WATCH_PERIOD_S = 0.05
+
+#: A plant counts as gone once no plant/state writer is matched and none of its states came for this long, s
+#: (under load a live plant's writer count was once read as 0 mid-run, which split the run in two).
+PLANT_GONE_S = 0.5
 
 #: Plant states kept while waiting for the controller state of the same stamp.
 _PENDING_LIMIT = 1000
@@ -184,6 +189,7 @@ class RerunBridge(Node):
                                                          lambda msg, i=index: self._on_controller(i, msg)))
         if self._net is None:
             self._subscribe("", contract.TOPIC_INVARIANT_SET, self._on_invariant_set)
+        self._last_plant_s = -math.inf
         self.create_timer(WATCH_PERIOD_S, self._watch)
         self.get_logger().info(f"{READY_TEXT} ({values['sink']})")
 
@@ -197,7 +203,7 @@ class RerunBridge(Node):
         controllers = all(sub.get_publisher_count() for sub in self._controller_subs)
         if not self._gates and plants and controllers and self._run_over():
             self._begin_run()
-        elif self._gates and not plants:
+        elif self._gates and not plants and time.monotonic() - self._last_plant_s > PLANT_GONE_S:
             self._end_plant()
         self._report()
 
@@ -241,6 +247,7 @@ class RerunBridge(Node):
         self._boundary = np.array([(p.x, p.y) for p in msg.polygon.points])
 
     def _on_plant(self, index: int, msg) -> None:
+        self._last_plant_s = time.monotonic()
         stamp_ns, delta, speed, _ = contract.plant_state_from_message(msg)
         if self._run_over():  # a plant that did not wait for the bridge: its run starts here
             self._begin_run()
