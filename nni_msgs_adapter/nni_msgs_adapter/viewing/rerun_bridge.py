@@ -111,6 +111,11 @@ WATCH_PERIOD_S = 0.05
 #: (under load a live plant's writer count was once read as 0 mid-run, which split the run in two).
 PLANT_GONE_S = 0.5
 
+#: The gate opens once a plant and every controller have been heard this long, s: their writers then
+#: have matched the bridge's readers too (discovery is not symmetric in time; without it a controller's
+#: first state once went out before its writer knew the bridge, and the stream missed that sample).
+GATE_SETTLE_S = 1.0
+
 #: Plant states kept while waiting for the controller state of the same stamp.
 _PENDING_LIMIT = 1000
 
@@ -189,7 +194,7 @@ class RerunBridge(Node):
                                                          lambda msg, i=index: self._on_controller(i, msg)))
         if self._net is None:
             self._subscribe("", contract.TOPIC_INVARIANT_SET, self._on_invariant_set)
-        self._last_plant_s = -math.inf
+        self._last_plant_s, self._heard_since = -math.inf, None
         self.create_timer(WATCH_PERIOD_S, self._watch)
         self.get_logger().info(f"{READY_TEXT} ({values['sink']})")
 
@@ -201,7 +206,9 @@ class RerunBridge(Node):
         """Open the gate when a plant and every controller are heard; close it when the plant is gone."""
         plants = self._plant_subs[0].get_publisher_count()
         controllers = all(sub.get_publisher_count() for sub in self._controller_subs)
-        if not self._gates and plants and controllers and self._run_over():
+        heard = plants and controllers
+        self._heard_since = (self._heard_since or time.monotonic()) if heard else None
+        if not self._gates and heard and self._run_over() and time.monotonic() - self._heard_since >= GATE_SETTLE_S:
             self._begin_run()
         elif self._gates and not plants and time.monotonic() - self._last_plant_s > PLANT_GONE_S:
             self._end_plant()
