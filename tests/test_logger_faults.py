@@ -64,6 +64,10 @@ def run_until_the_logger_fails(tmp_path, path: Path, pmu_rate_hz: float, during=
         with node_processes(tmp_path, domain) as start:
             logger = start("logger", LOGGER, {"output_path": str(path), "discovery_period_s": 0.1,
                                               "flush_period_s": 0.1})
+            # The ERROR goes out on a volatile topic: the probe must hear the logger before it can fail
+            # (under CI load the probe once matched the logger only after the folder was gone).
+            assert probe.wait_for_publishers(contract.TOPIC_DIAGNOSTICS, 1, timeout=30.0), \
+                "the probe never matched the logger's /diagnostics publisher"
             start("controller", CONTROLLER, {"battery_limit_pu": 0.3, "sample_rate_hz": pmu_rate_hz})
             start("plant", PLANT, {"mode": "realtime", "duration_s": 0.0, "pmu_rate_hz": pmu_rate_hz,
                                    "wait_for_subscribers": 2})
