@@ -134,6 +134,25 @@ def test_a_command_acts_from_its_arrival_and_the_loop_integrates_ahead_then_redo
     assert loop.channels[0].counts["unsolicited_commands"] == 1
 
 
+def test_with_several_generators_the_loop_integrates_ahead_once_every_one_has_answered():
+    calls = []
+
+    def counting(t0_s, t1_s, state, powers):
+        calls.append((round(t0_s, 9), round(t1_s, 9)))
+        return integrate(t0_s, t1_s, state, powers)
+
+    loop = RealtimeReporter(counting, [], [paired_channel() for _ in range(3)], 0.0, 1_000 * MS, 20 * MS, 0.1)
+    loop.start(1_000 * MS)
+    for index, (power, arrival_ms) in enumerate(((0.1, 1_003), (0.2, 1_005), (0.3, 1_007))):
+        loop.command(index, 1_000 * MS, power, arrival_ms * MS)
+    assert calls == [(0.0, 0.003), (0.003, 0.005), (0.005, 0.007), (0.007, 0.02)], "each piece once, no redo"
+    report = loop.on_timer(1_020 * MS).measurement
+    assert report.state[-4:] == [(0.0, 0.003, (0.0, 0.0, 0.0)), (0.003, 0.005, (0.1, 0.0, 0.0)),
+                                 (0.005, 0.007, (0.1, 0.2, 0.0)), (0.007, 0.02, (0.1, 0.2, 0.3))], \
+        "each command in force from its arrival"
+    assert len(calls) == 4, "the tick found the instant integrated already"
+
+
 def test_a_command_finding_an_instant_unreported_reports_it_first_with_the_power_then_in_force():
     loop = realtime()
     loop.start(1_000 * MS)

@@ -253,8 +253,8 @@ class RealtimeReporter(_Loop):
 
     As a PMU does (IEEE C37.118), the measurement of instant k is of the state
     at that instant and stamped with it. The state there is integrated while
-    the loop is idle (after each command, up to the next instant; redone from
-    a later arrival if another command comes first), so that a tick only
+    the loop is idle (once every channel has answered, up to the next instant;
+    redone from a later arrival if another command comes first), so that a tick only
     publishes. A tick that fell more than a period behind reports the latest
     instant and counts the ones it skipped. A run of ``duration_s`` ends at its
     last instant N T, however late the tick that finds it. A command older
@@ -363,13 +363,20 @@ class RealtimeReporter(_Loop):
                     self._heard_ns[index] = arrival_ns
             else:  # the stand-down
                 self.line.force(index, self.sample - 2, power)
-            # Integrate now, while the loop is idle, up to the next reporting instant (the power
-            # holds until the next command, which answers that instant's measurement): the tick
-            # then only publishes. Profiled: this takes the RK4 (10 steps at 100/s, 0.2-0.4 ms)
-            # off the measurement -> command latency.
-            self._ahead = (self.t_s, self.state, self.line.snapshot())
-            self.advance_to(self.sample * self.period_s)
+            if self._all_answered():
+                # Integrate now, while the loop is idle, up to the next reporting instant (the powers
+                # hold until the next commands, which answer that instant's measurement): the tick
+                # then only publishes. Profiled: this takes the RK4 (10 steps at 100/s, 0.2-0.4 ms)
+                # off the measurement -> command latency. Only once every generator has answered:
+                # with N generators an earlier integrate-ahead would be redone N - 1 times a period.
+                self._ahead = (self.t_s, self.state, self.line.snapshot())
+                self.advance_to(self.sample * self.period_s)
         return verdict, output
+
+    def _all_answered(self) -> bool:
+        """Every channel has answered the latest measurement sent: no command is due before the next instant."""
+        latest_ns = self.t0_ns + (self.sample - 1) * self.period_ns
+        return all(channel.stats.is_answered(latest_ns) for channel in self.channels)
 
 
 class LockstepStepper(_Loop):
