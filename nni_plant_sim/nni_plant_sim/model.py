@@ -16,6 +16,7 @@ Deviation coordinates: ``angle_dev = delta - delta_bar`` with
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, fields
 
@@ -80,12 +81,14 @@ class SmibParams:
                 f"(p_mech_pu={self.p_mech_pu}, p_max_pu={self.p_max_pu})"
             )
 
-    @property
+    # Cached (the parameters are frozen): the swing equation reads M at every RK4 stage, 40 times a
+    # sample on the plant node's path, where recomputing it was a sixth of a period's integration.
+    @functools.cached_property
     def omega0_rad_s(self) -> float:
         """Nominal angular frequency omega0 = 2 pi f0 in rad/s."""
         return 2.0 * math.pi * self.f0_hz
 
-    @property
+    @functools.cached_property
     def inertia_m(self) -> float:
         """Inertia M = 2H/omega0 in pu power s^2/rad."""
         return 2.0 * self.inertia_h_s / self.omega0_rad_s
