@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import sys
 
-from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 
 from nni_battery_controller.controller_config import ControllerConfig, parameters, prepared
@@ -72,8 +71,7 @@ class ControllerNode(Node):
     def _publish_diagnostics(self) -> None:
         level, message, values = self._core.status()
         self._diag_pub.publish(contract.diagnostics_message(self.get_clock().now().nanoseconds, "controller",
-                                                            self.get_fully_qualified_name(),
-                                                            getattr(DiagnosticStatus, level), message, values))
+                                                            self.get_fully_qualified_name(), level, message, values))
 
     def close(self) -> None:
         """Final diagnostics before the node goes."""

@@ -28,7 +28,6 @@ from __future__ import annotations
 import json
 import math
 
-from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from rclpy.task import Future
 from rosgraph_msgs.msg import Clock
@@ -249,7 +248,7 @@ class PlantNodeBase(Node):
             level, message = channel.health(self._loop is not None, self._wait.text)
             self._diag_pub.publish(contract.diagnostics_message(
                 self._now_ns(), "plant", f"/{ns}/plant" if ns else self.get_fully_qualified_name(),
-                getattr(DiagnosticStatus, level), message, values))
+                level, message, values))
         return generators
 
     def close(self) -> None:

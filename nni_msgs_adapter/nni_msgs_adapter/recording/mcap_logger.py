@@ -39,7 +39,6 @@ import sys
 from datetime import datetime
 from pathlib import Path
 
-from diagnostic_msgs.msg import DiagnosticStatus
 from rclpy.node import Node
 from rclpy.task import Future
 
@@ -206,7 +205,7 @@ class McapLogger(Node):
         """First write failure (any thread): ERROR on /diagnostics at once, then stop the node."""
         self._diag_pub.publish(contract.diagnostics_message(
             self.get_clock().now().nanoseconds, "mcap_logger", self.get_fully_qualified_name(),
-            DiagnosticStatus.ERROR, str(failure), {"path": str(self.path), "messages_flushed": self._writer.flushed}))
+            "ERROR", str(failure), {"path": str(self.path), "messages_flushed": self._writer.flushed}))
         if not self.done.done():
             self.done.set_result(False)
 

@@ -265,16 +265,19 @@ def invariant_set_message(stamp_ns: int, boundary) -> PolygonStamped:
     return msg
 
 
-def diagnostics_message(stamp_ns: int, name: str, hardware_id: str, level: bytes, message: str,
+def diagnostics_message(stamp_ns: int, name: str, hardware_id: str, level: str, message: str,
                         values: dict) -> DiagnosticArray:
     """One DiagnosticStatus in a DiagnosticArray for ``/diagnostics``; ``values`` become KeyValue strings.
+
+    ``level`` names a DiagnosticStatus constant (``"OK"``, ``"WARN"``, ``"ERROR"``), as the
+    rclpy-free cores give it.
 
     ``hardware_id`` is the reporting node's fully qualified name (``/gen1/plant``); its namespace
     prefixes the status name (``gen1/plant``), so that the statuses of several generators on the
     one absolute topic stay apart (:func:`split_status_name` reads it back).
     """
     namespace = hardware_id.rpartition("/")[0].strip("/")
-    status = DiagnosticStatus(level=level, name=f"{namespace}/{name}" if namespace else name, message=message,
+    status = DiagnosticStatus(level=getattr(DiagnosticStatus, level), name=f"{namespace}/{name}" if namespace else name, message=message,
                               hardware_id=hardware_id)
     status.values = [KeyValue(key=key, value=_format_value(value)) for key, value in values.items()]
     msg = DiagnosticArray()
