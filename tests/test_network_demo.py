@@ -115,7 +115,25 @@ def table_rows(text: str, names) -> dict[str, str]:
     return {line.split()[0]: line.strip() for line in text.splitlines() if line.strip().split(" ")[0] in names}
 
 
-def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_and_leaves_nothing(tmp_path):
+#: The Kundur demo run of the tests below: 2 s lockstep, b = 0.1 with gen2 at 0 (--gen-b).
+KUNDUR_DEMO = ["--case", "kundur_two_area", "--b", "0.1", "--gen-b", "2=0", "--duration", "2"]
+
+
+def kundur_demo(out: Path, deployment: str):
+    """The Kundur demo run with ``--deployment``, two busy processes beside it; (result, children, marker)."""
+    with busy_processes(2):
+        return run_demo([*KUNDUR_DEMO, "--deployment", deployment, "--out", str(out)], fresh_domain_id())
+
+
+@pytest.fixture(scope="module")
+def separate_kundur_demo(tmp_path_factory):
+    """The Kundur demo with a controller process per generator (the default deployment, given explicitly)."""
+    out = tmp_path_factory.mktemp("separate")
+    return out, *kundur_demo(out, "separate")
+
+
+def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_and_leaves_nothing(
+        separate_kundur_demo):
     """2 s lockstep, b = 0.1 with gen2 at 0 (--gen-b), two busy processes beside it.
 
     The printed verdict and generator rows are the offline study's (format_run of
@@ -123,10 +141,7 @@ def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_an
     whose final sample the recording does not have: offline the controllers
     answer the run's final sample too; in the loop nobody answers it.
     """
-    domain = fresh_domain_id()
-    with busy_processes(2):
-        result, children, marker = run_demo(["--case", "kundur_two_area", "--b", "0.1", "--gen-b", "2=0", "--duration", "2",
-                                     "--out", str(tmp_path)], domain)
+    tmp_path, result, children, marker = separate_kundur_demo
     assert result.returncode == 0, result.stderr
     assert len(children) == 6, "logger, four controllers, plant"
     assert_nothing_left(children, marker)
@@ -145,6 +160,7 @@ def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_an
 
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["case"] == "kundur_two_area" and summary["namespaces"] == ["gen1", "gen2", "gen3", "gen4"]
+    assert summary["deployment"] == "separate"
     (run,) = summary["runs"]
     assert run["b"] == 0.1 and run["gen_b"] == {"gen2": 0.0} and run["in_synchronism"] is True
     assert "compromised" not in run
@@ -169,6 +185,47 @@ def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_an
     assert meta["case"] == "kundur_two_area" and list(meta["controllers"]) == ["/gen1", "/gen2", "/gen3", "/gen4"]
     assert meta["controllers"]["/gen2"]["battery_limit_pu"] == 0.0
     assert (tmp_path / "figures.png").stat().st_size > 0
+
+
+def key_paths(value, prefix=()) -> set[tuple]:
+    """Every key path of a JSON value (dicts by key; a list's items by index), the values left out."""
+    if isinstance(value, dict):
+        return {prefix + (key,) for key in value} | {path for key, item in value.items()
+                                                     for path in key_paths(item, prefix + (key,))}
+    if isinstance(value, list):
+        return {path for index, item in enumerate(value) for path in key_paths(item, prefix + (index,))}
+    return set()
+
+
+def test_the_composed_deployment_gives_the_separate_processes_rows_and_trajectory_bit_for_bit(
+        tmp_path, separate_kundur_demo):
+    """--deployment composed: one composed_controllers process beside the logger and the plant; the same
+    verdict table, the same summary.json keys and, at every sample of every generator, the same floats
+    in the recording as a controller process per generator; nothing left running."""
+    separate_out, separate, _, _ = separate_kundur_demo
+    result, children, marker = kundur_demo(tmp_path, "composed")
+    assert result.returncode == 0, result.stderr
+    assert len(children) == 3, "logger, one composed_controllers process, plant"
+    assert_nothing_left(children, marker)
+    assert "their controllers composed in one process" in result.stdout.splitlines()[0], result.stdout
+    names = load_network("kundur_two_area").names
+    verdict = [line for line in separate.stdout.splitlines() if "b = 0.1 pu, reference pmu:" in line]
+    assert len(verdict) == 1 and verdict[0] in result.stdout.splitlines()
+    assert table_rows(result.stdout, names) == table_rows(separate.stdout, names)
+    summaries = [json.loads((out / "summary.json").read_text()) for out in (separate_out, tmp_path)]
+    assert key_paths(summaries[0]) == key_paths(summaries[1])
+    assert summaries[1]["deployment"] == summaries[1]["runs"][0]["deployment"] == "composed"
+    recorded = [generator_runs(read_recording(summary["runs"][0]["recording"])) for summary in summaries]
+    assert list(recorded[1]) == ["/gen1", "/gen2", "/gen3", "/gen4"]
+    for ns, reference in recorded[0].items():
+        got = recorded[1][ns]
+        for field in ("stamp_ns", "delta_rad", "speed_rad_s", "battery_power_pu"):
+            assert np.array_equal(getattr(got, field), getattr(reference, field)), (ns, field)
+        assert set(got.signals) == set(reference.signals)
+        for name, values in reference.signals.items():  # the controller's state; NaN where it did not report
+            assert np.array_equal(got.signals[name], values, equal_nan=True), (ns, name)
+    assert sorted(p.name for p in (tmp_path / "logs").glob("*/*.log")) == [
+        "composed_controllers.log", "mcap_logger.log", "network_plant.log"]
 
 
 def test_coi_reference_and_a_displacement_run_as_offline_and_stream_every_generator_to_rerun(tmp_path):
@@ -240,6 +297,7 @@ def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
     (["--case", "kundur_two_area", "--gen-b", "5=0.1"], "--gen-b 5=0.1: no generator 5 (the case has gen1 .. gen4)"),
     (["--case", "kundur_two_area", "--K", "1", "1", "1", "2"], "generator G4@4: K must be less than L"),
     (["--gen-b", "2=0.1"], "--gen-b applies to a network of generators only"),
+    (["--deployment", "composed"], "--deployment applies to a network of generators only"),
     (["--case", "kundur_two_area", "--clearing-time", "2000"], "network plant parameter clearing_time = 2000 is outside"),
     (["--case", "kundur_two_area", "--tau", "1e-5"], "controller parameter tau_s = 1e-05 is outside 0.0001..100"),
 ])
@@ -341,19 +399,21 @@ def test_the_launch_files_nodes_run_the_network_and_record_every_generator(netwo
     assert all(run.stamp_ns.size == 51 for run in runs.values()), "1 s at 50 frames/s: t_0 .. t_50"
 
 
-def test_a_killed_network_demo_takes_every_process_with_it(tmp_path):
-    """SIGKILL mid-run (realtime, 60 s): the plant, the four controllers and the logger end with it."""
+@pytest.mark.parametrize("deployment, processes", [("separate", 6), ("composed", 3)])
+def test_a_killed_network_demo_takes_every_process_with_it(tmp_path, deployment, processes):
+    """SIGKILL mid-run (realtime, 60 s): the plant, the controllers (four processes, or the one composed) and
+    the logger end with it."""
     domain = fresh_domain_id()
     env, marker = marked_env(domain)
     demo = subprocess.Popen([str(DEMO), "--case", "kundur_two_area", "--mode", "realtime", "--b", "0.1",
-                             "--duration", "60", "--out", str(tmp_path), "--domain-id", str(domain)],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                             "--duration", "60", "--deployment", deployment, "--out", str(tmp_path),
+                             "--domain-id", str(domain)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     children: set = set()
     deadline = time.monotonic() + 120
-    while len(children) < 6 and time.monotonic() < deadline:
+    while len(children) < processes and time.monotonic() < deadline:
         children |= children_of(demo.pid)
         time.sleep(0.2)
-    assert len(children) == 6, "logger, four controllers and the plant should be running"
+    assert len(children) == processes, "the logger, the controllers and the plant should be running"
     demo.kill()
     demo.wait(timeout=60)
     deadline = time.monotonic() + 30

@@ -92,7 +92,7 @@ def build_parser() -> OneLineParser:
 
 
 #: Options of ``nni-demo --case`` only: given to the SMIB demo, they are refused.
-NETWORK_ONLY_OPTIONS = ("--gen-b", "--fault-bus", "--fault-r", "--fault-x", "--trip-line")
+NETWORK_ONLY_OPTIONS = ("--gen-b", "--fault-bus", "--fault-r", "--fault-x", "--trip-line", "--deployment")
 
 
 def given_options(argv) -> list[str]:
