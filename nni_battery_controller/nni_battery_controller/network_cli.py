@@ -50,8 +50,9 @@ from nni_plant_sim.network_scenarios import (
     MechanicalStep,
 )
 
-#: Fault bus when --fault-bus is not given: a load bus of each shipped case.
-DEFAULT_FAULT_BUS = {"kundur_two_area": 7, "ieee39": 16}
+#: Fault bus when --fault-bus is not given: a load bus of each shipped case (kundur_ring_52: copy 0's bus 7, as the
+#: network plant node's default).
+DEFAULT_FAULT_BUS = {"kundur_two_area": 7, "ieee39": 16, "kundur_ring_52": 7}
 DEFAULT_LIMITS = (0.0, 0.1, 0.3, math.inf)
 
 
