@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nni_msgs_adapter.ros.processes import ChildError, Supervisor
+from nni_msgs_adapter.ros.processes import ChildError, Supervisor, with_participants
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Targets of issue 5 (ratios are measured in the same run).
@@ -72,8 +72,6 @@ NETWORK_LOCKSTEP_CASES = ((None, 3, "separate"), ("kundur_two_area", 3, "separat
                           ("ieee39", 3, "composed"), ("kundur_ring_52", 3, "composed"))
 NETWORK_LOCKSTEP_QUICK_CASES = ((None, 1, "separate"), ("kundur_two_area", 1, "separate"),
                                 ("kundur_two_area", 1, "composed"), ("kundur_ring_52", 1, "composed"))
-#: Participants rmw_fastrtps (Jazzy) discovers on one host under ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST.
-LOCALHOST_PEER_RANGE = 32
 #: What --only selects (all by default).
 BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime")
 
@@ -145,7 +143,7 @@ def pingpong(env: dict, log_dir: Path, mode: str, rate_hz: float = 100.0, durati
     from bench.pingpong import RESULT_PREFIX, fanout_namespaces
 
     echo = [sys.executable, "-m", "bench.pingpong", "echo"]
-    env, peer_range = dds_environment(env, log_dir, 2 if composed else fanout + 1)
+    env = with_participants(env, 2 if composed else max(fanout, 1) + 1)
     with children(env, log_dir) as procs:
         if composed:
             procs.start("echoes", echo + ["--composed", str(fanout)])
@@ -165,45 +163,8 @@ def pingpong(env: dict, log_dir: Path, mode: str, rate_hz: float = 100.0, durati
             stop_together(procs)
         for line in procs["ping"].output().splitlines():
             if line.startswith(RESULT_PREFIX):
-                return {**json.loads(line[len(RESULT_PREFIX):]), "echo_rss_kib": echo_rss,
-                        "peer_range": peer_range}
+                return {**json.loads(line[len(RESULT_PREFIX):]), "echo_rss_kib": echo_rss}
     raise RuntimeError("ping-pong printed no result")
-
-
-def dds_environment(env: dict, log_dir: Path, participants: int) -> tuple[dict, int | None]:
-    """``env`` for a run of ``participants`` processes on this host; with more than rmw's localhost range, a profile.
-
-    rmw_fastrtps (Jazzy) under ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST sends
-    its discovery announcements to the ports of the first
-    ``LOCALHOST_PEER_RANGE`` participants of the domain only (its UDP
-    transport's ``maxInitialPeersRange``): a 33rd process is never discovered
-    (measured: with 52 controllers the plant never saw gen33's). Beyond it,
-    the run gets the shipped loopback profile with ``maxInitialPeersRange``
-    raised on its UDP transport (written to the run's log directory; the
-    nodes say on their log that a profile of the user's own is in use).
-    Returns the environment and the range set (None: the shipped profile).
-    """
-    if participants <= LOCALHOST_PEER_RANGE:
-        return env, None
-    import xml.etree.ElementTree as ElementTree
-
-    from nni_msgs_adapter.ros.node_main import DEFAULT_NETWORK, network_profile
-
-    peers = -(-participants // LOCALHOST_PEER_RANGE) * LOCALHOST_PEER_RANGE
-    namespace = "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"
-    ElementTree.register_namespace("", namespace)
-    tree = ElementTree.parse(network_profile(DEFAULT_NETWORK))
-    udp = [d for d in tree.iter(f"{{{namespace}}}transport_descriptor")
-           if d.findtext(f"{{{namespace}}}type") == "UDPv4"]
-    if len(udp) != 1:
-        raise RuntimeError(f"the shipped DDS profile has {len(udp)} UDPv4 transports, expected one")
-    peer_range = ElementTree.Element(f"{{{namespace}}}maxInitialPeersRange")
-    peer_range.text = str(peers)
-    udp[0].insert(2, peer_range)
-    log_dir.mkdir(parents=True, exist_ok=True)
-    path = log_dir / "fastdds_profiles_many_participants.xml"
-    tree.write(path, xml_declaration=True, encoding="UTF-8")
-    return dict(env, FASTRTPS_DEFAULT_PROFILES_FILE=str(path)), peers
 
 
 def stop_together(procs: Supervisor) -> None:
@@ -376,20 +337,19 @@ def network_loop(env: dict, log_dir: Path, case: str, mode: str, rate_hz: float,
     law = default_law(net)
     parameters = {f"/{ns}": controller_parameters(net, i, NETWORK_BATTERY_LIMIT_PU, rate_hz, law)
                   for i, ns in enumerate(namespaces(net))}
-    env, peer_range = dds_environment(env, log_dir, 2 if deployment == "composed" else net.size + 1)
+    env = with_participants(env, 1 + (1 if deployment == "composed" else net.size))
     with children(env, log_dir) as procs:
         controllers = start_controllers(procs, parameters, deployment)
         plant = procs.start_node("plant", "nni_plant_sim.network_plant_node",
                                  {"case": case, "mode": mode, "duration_s": duration_s, "pmu_rate_hz": rate_hz,
                                   "wait_for_subscribers": 1, "wait_timeout_s": 600.0})
         try:
-            return run_network_plant(plant, controllers, case, mode, net.size, duration_s, peer_range)
+            return run_network_plant(plant, controllers, case, mode, net.size, duration_s)
         finally:
             stop_together(procs)
 
 
-def run_network_plant(plant, controllers, case: str, mode: str, size: int, duration_s: float,
-                      peer_range) -> dict:
+def run_network_plant(plant, controllers, case: str, mode: str, size: int, duration_s: float) -> dict:
     """Wait for the plant's run (stopped as partial past its limit); its summary, the controllers' RSS and CPU."""
     from nni_plant_sim.network_plant_node import SUMMARY_PREFIX
 
@@ -412,7 +372,7 @@ def run_network_plant(plant, controllers, case: str, mode: str, size: int, durat
     for line in plant.output().splitlines():
         if line.startswith(SUMMARY_PREFIX):
             return {"summary": json.loads(line[len(SUMMARY_PREFIX):]), "rss_kib": rss, "cpu_share": cpu,
-                    "size": size, "peer_range": peer_range, "partial": partial}
+                    "size": size, "partial": partial}
     raise RuntimeError(f"the network plant ({case}) printed no summary")
 
 
@@ -479,8 +439,7 @@ def network_lockstep_row(env, log_root: Path, case, rounds: int, rate_hz: float,
             raise RuntimeError(f"lockstep {label}: the plant's final status shows no run ({first})")
         round_trip_s = float(np.mean(chained["round_trips_ns"])) * 1e-9
         pairs.append({"round_trip_s": round_trip_s, "sim_s": sim_s, "wall_s": wall_s, "summary": summary,
-                      "floor_ratio": ((1.0 / rate_hz) / round_trip_s) / (sim_s / wall_s),
-                      "peer_range": chained["peer_range"]})
+                      "floor_ratio": ((1.0 / rate_hz) / round_trip_s) / (sim_s / wall_s)})
     sim_s, wall_s = sum(p["sim_s"] for p in pairs), sum(p["wall_s"] for p in pairs)
     round_trip_s = float(np.median([p["round_trip_s"] for p in pairs]))
     return {
@@ -493,7 +452,7 @@ def network_lockstep_row(env, log_root: Path, case, rounds: int, rate_hz: float,
         **{f"{name}_ms": {q: float(np.median([generator_percentiles(p["summary"], name)[q] for p in pairs]))
                           for q in ("p50", "p99")} for name in ("latency", "turnaround")},
         "deadline_misses": sum(int(v["deadline_misses"]) for p in pairs for v in p["summary"].values()),
-        "peer_range": pairs[0]["peer_range"], "partial": partial,
+        "partial": partial,
     }
 
 
@@ -780,7 +739,7 @@ def network_lockstep_section(rows: list[dict]) -> list[str]:
     for row in rows:
         rounds = ", ".join(f"{ratio:.2f}" for ratio in row["round_ratios"])
         case = f"{row['case']} (**partial**: {row['partial']})" if row["partial"] else row["case"]
-        lines.append(f"| {row['generators']}{' *' if row['peer_range'] else ''} | {case} | {row['deployment']} | "
+        lines.append(f"| {row['generators']} | {case} | {row['deployment']} | "
                      f"{row['sim_duration_s']:g} / {row['run_wall_s']:.2f} | "
                      f"{row['throughput']:.1f} | {row['floor_throughput']:.1f} | **{row['floor_ratio']:.2f}** "
                      f"({rounds}) | {row['cycle_ms']:.3f} | {row['round_trip_mean_ms']:.3f} | "
@@ -789,15 +748,6 @@ def network_lockstep_section(rows: list[dict]) -> list[str]:
                      f"{row['deadline_misses']} |")
     for row in failed:
         lines.append(f"| - | {row['case']}: **not completed**: {row['error']} | {row['deployment']} |" + " |" * 9)
-    widened = [row for row in rows if row["peer_range"]]
-    if widened:
-        lines += ["", f"\\* More than {LOCALHOST_PEER_RANGE} processes: rmw_fastrtps (Jazzy) under "
-                      f"ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST discovers the first {LOCALHOST_PEER_RANGE} "
-                      "participants of a domain on the host only (its `maxInitialPeersRange`), so with the shipped "
-                      "DDS profile a 33rd controller is never discovered and the plant waits for it until "
-                      "`wait_timeout_s`. These rows (loop and fan-out alike) ran with the shipped profile plus "
-                      f"`maxInitialPeersRange` {widened[0]['peer_range']} on its UDP transport "
-                      "(`bench/__main__.py: dds_environment`)."]
     for deployment in ("separate", "composed"):
         cost = per_generator_cost([row for row in rows if row["deployment"] == deployment])
         if cost:

@@ -62,6 +62,7 @@ from nni_battery_controller.network_deployment import (
     default_law,
     generator_limits,
     namespaces,
+    participants,
     plant_parameters,
     pmu_readers,
     scenario_parameters,
@@ -78,7 +79,7 @@ from nni_msgs_adapter.ros.cli_support import (
     positive_float,
     run_cli,
 )
-from nni_msgs_adapter.ros.processes import ChildError, Supervisor
+from nni_msgs_adapter.ros.processes import ChildError, Supervisor, with_participants
 from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX
 from nni_plant_sim.cases import CASES, load_network
 from nni_plant_sim.network_plant_node import SUMMARY_PREFIX, parameters as plant_node_parameters
@@ -342,6 +343,8 @@ def main(argv=None) -> int:
         args = parse_arguments(argv)
         env, domain = run_environment(args)
         net, spaces = args.net, namespaces(args.net)
+        # The logger and the plant, a Rerun bridge, the controllers: beyond 32, discovery is widened to cover them.
+        env = with_participants(env, participants(net, args.deployment, 2 + (args.rerun is not None)))
         deployment = ("a controller process each" if args.deployment == "separate"
                       else "their controllers composed in one process")
         print(f"{PROG}: {args.case}, {net.size} generators ({deployment}, /{spaces[0]} .. /{spaces[-1]}), {args.mode},"

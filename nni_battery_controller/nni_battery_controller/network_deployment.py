@@ -131,6 +131,12 @@ def plant_parameters(case: str, scenario_values: dict, mode: str, rate_hz: float
             "duration_s": float(duration_s), "wait_for_subscribers": int(readers)}
 
 
+def participants(net, deployment: str, others: int) -> int:
+    """The DDS participants (processes) of a run: its controllers (one per generator, or one composed process)
+    and ``others`` (the plant, the logger, a Rerun bridge); the deployment's ``NNI_DDS_PARTICIPANTS``."""
+    return (net.size if deployment == "separate" else 1) + others
+
+
 def composed_parameters(controllers: dict) -> dict:
     """The params file of ``composed_controllers`` for ``{namespace: parameters}``: one section per node."""
     return {f"{ns}/controller": {"ros__parameters": values} for ns, values in controllers.items()}
