@@ -383,29 +383,73 @@ def test_the_launch_file_creates_one_controller_per_generator_of_the_case(networ
     plant = nodes[-1]["parameters"]
     assert plant["case"] == case and plant["duration_s"] == 3.0 and plant["wait_for_subscribers"] == 2
     assert plant["fault_bus"] == {"kundur_two_area": 7, "ieee39": 16}[case]
+    assert all(node["env"] == {"NNI_DDS_PARTICIPANTS": str(net.size + 2)} for node in nodes), "logger, plant, N"
     for node in nodes:
         module = importlib.import_module(console_script_module(node["executable"]))
         declared = {spec.name for spec in module.parameters()}
         assert set(node["parameters"]) <= declared, (node["executable"], set(node["parameters"]) - declared)
 
 
+#: Each network scenario as launch arguments and as the nni-demo --case options that say the same.
+LAUNCH_SCENARIOS = [
+    ({"fault_bus": "8", "fault_x": "0.01", "clearing_time": "0.15", "trip_line": "7 8"},
+     ["--fault-bus", "8", "--fault-x", "0.01", "--clearing-time", "0.15", "--trip-line", "7", "8"]),
+    ({"scenario": "line_trip", "trip_line": "7 8"}, ["--scenario", "line_trip", "--trip-line", "7", "8"]),
+    ({"scenario": "mechanical_step", "machine": "2", "step_p_mech": "0.95", "step_duration": "0.2"},
+     ["--scenario", "mechanical_step", "--machine", "2", "--step-p-mech", "0.95", "--step-duration", "0.2"]),
+    ({"scenario": "angle_displacement", "machine": "1 3", "displace": "0.3"},
+     ["--scenario", "angle_displacement", "--machine", "1", "3", "--displace", "0.3"]),
+]
+
+
+@pytest.mark.parametrize("launch_args, demo_options", LAUNCH_SCENARIOS)
+def test_every_network_scenario_is_launchable_with_the_plant_parameters_nni_demo_gives(network_launch, launch_args,
+                                                                                      demo_options):
+    """The launch arguments of each scenario (generated from the network plant node's table) give the plant
+    the scenario parameters ``nni-demo --case`` gives it for the same disturbance, and nothing of the others."""
+    from nni_battery_controller.network_demo import parse_arguments
+
+    plant = network_launch.network_nodes(launch_args)[-1]["parameters"]
+    demo = parse_arguments(["--case", "kundur_two_area", *demo_options]).scenario_values
+    launched = {key: value for key, value in plant.items() if key in network_launch.SCENARIO_ARGUMENTS}
+    assert set(launched) - {"trip_line"} == set(demo) - {"trip_line"}, (launched, demo)
+    assert launched.get("trip_line", "") == demo.get("trip_line", "")
+    for key, value in demo.items():
+        assert launched[key] == (pytest.approx(value, rel=1e-15) if isinstance(value, float) else value), key
+
+
 def test_the_launch_file_refuses_what_cannot_work(network_launch):
     for given, message in (({"fault_bus": "99"}, "bus 99 is not in the case"),
-                           ({"scenario": "mechanical_step"}, "scenario must be one of bus_fault, line_trip"),
+                           ({"scenario": "mechanical_step"}, "scenario mechanical_step needs machine"),
+                           ({"scenario": "bus_fault", "displace": "0.5"},
+                            "not for scenario bus_fault: displace \\(angle_displacement only\\)"),
+                           ({"scenario": "mechanical_step", "machine": "1 2"}, "mechanical_step needs one machine"),
+                           ({"scenario": "angle_displacement", "machine": "9"}, "machine 9: no generator at that bus"),
+                           ({"scenario": "angle_displacement", "machine": "one"}, "machine takes bus numbers"),
+                           ({"clearing_time": "soon"}, "clearing_time takes a number, got 'soon'"),
+                           ({"scenario": "islanding"}, "scenario must be one of bus_fault, line_trip, "
+                                                       "mechanical_step, angle_displacement"),
                            ({"gen_b": "7=0.1"}, "gen_b 7=0.1: no generator 7"),
                            ({"gain_k": "2.0"}, "K must be less than L")):
         with pytest.raises(Exception, match=message):
             network_launch.network_nodes(given)
 
 
-def test_the_launch_files_nodes_run_the_network_and_record_every_generator(network_launch, tmp_path):
-    """The node list, started as the processes ros2 launch would start: a 1 s lockstep Kundur run, one MCAP."""
+@pytest.mark.parametrize("launch_args, scenario", [
+    ({}, lambda net: BusFault(net, 7, 0.1)),
+    ({"scenario": "angle_displacement", "machine": "1", "displace": "0.3"},
+     lambda net: AngleDisplacement(np.array([0.3, 0.0, 0.0, 0.0]))),
+], ids=["bus_fault", "angle_displacement"])
+def test_the_launch_files_nodes_run_the_network_and_record_every_generator(network_launch, tmp_path, launch_args,
+                                                                           scenario):
+    """The node list, started as the processes ros2 launch would start (their environment too): a 1 s lockstep
+    Kundur run, one MCAP, every generator's angles the offline sampled simulation's of the scenario to 1e-12."""
     domain, path = fresh_domain_id(), tmp_path / "network.mcap"
-    nodes = network_launch.network_nodes({"duration_s": "1.0", "output_path": str(path)})
+    nodes = network_launch.network_nodes({"duration_s": "1.0", "output_path": str(path), **launch_args})
     with node_processes(tmp_path, domain) as start:
         started = [start(f"{n['executable']}_{n['namespace'] or 'root'}", console_script_module(n["executable"]),
                          {**n["parameters"], **({"discovery_period_s": 0.1} if n["name"] == "mcap_logger" else {})},
-                         ("-r", f"__ns:=/{n['namespace']}") if n["namespace"] else ())
+                         ("-r", f"__ns:=/{n['namespace']}") if n["namespace"] else (), n["env"])
                    for n in nodes]
         plant, logger = started[-1], started[0]
         assert plant.wait(timeout=180.0) == 0, plant.output()
@@ -414,6 +458,10 @@ def test_the_launch_files_nodes_run_the_network_and_record_every_generator(netwo
     runs = generator_runs(read_recording(path))
     assert list(runs) == ["/gen1", "/gen2", "/gen3", "/gen4"]
     assert all(run.stamp_ns.size == 51 for run in runs.values()), "1 s at 50 frames/s: t_0 .. t_50"
+    net = load_network("kundur_two_area")
+    offline = simulate_network(net, default_law(net), scenario(net), [np.full(4, 0.1)], 1.0, 50.0)
+    for i, run in enumerate(runs.values()):
+        np.testing.assert_allclose(run.delta_rad, offline.delta_rad[:, i, 0], rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("deployment, processes", [("separate", 6), ("composed", 3)])
