@@ -346,6 +346,10 @@ def help_text(factory, prog: str) -> str:
                          "loopback: DDS only on 127.0.0.1 and shared memory (other hosts and network namespaces "
                          "cannot join); multihost: every interface, for a loop over several hosts (name them in "
                          "ROS_STATIC_PEERS).")
+    lines += _help_entry(f"{PARTICIPANTS_ENV} [unset]",
+                         f"how many ROS processes the deployment runs on this host (nni-demo --case and the network "
+                         f"launch file set it); above {LOCALHOST_PEER_RANGE}, the loopback profile's discovery range "
+                         f"is widened to cover them (at most {MAX_PARTICIPANTS}).")
     lines += _help_entry(f"{SECURITY_ENABLE_ENV}, ROS_SECURITY_KEYSTORE, --ros-args --enclave /nni/<node>",
                          "SROS2 on ROS 2 Jazzy installs (the PyPI Fast DDS has no DDS Security): README, Security.")
     return "\n".join(lines)
