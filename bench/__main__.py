@@ -756,8 +756,9 @@ def network_lockstep_section(rows: list[dict]) -> list[str]:
                           f"per generator, the floor's round trip by {cost['floor_ms']:.3f} ms."]
     for row in rows:
         if row["generators"] == 10:
+            met = verdict(row["floor_ratio"] <= NETWORK_FLOOR_RATIO_TARGET)
             lines += ["", f"Target at N = 10 ({row['deployment']}): within {NETWORK_FLOOR_RATIO_TARGET:g}x of the "
-                          f"floor ({row['floor_ratio']:.2f}): {verdict(row['floor_ratio'] <= NETWORK_FLOOR_RATIO_TARGET)}."]
+                          f"floor ({row['floor_ratio']:.2f}): {met}."]
     return lines + [""]
 
 

@@ -29,8 +29,9 @@ Before ROS starts:
   says how many in ``NNI_DDS_PARTICIPANTS`` (``processes.PARTICIPANTS_ENV``;
   nni-demo, the bench and the network launch file set it): above 32 the
   node gets the loopback profile with its UDP transport's
-  ``maxInitialPeersRange`` raised to cover them (a copy written to the
-  temporary directory; the whitelist and everything else as shipped). Not
+  ``maxInitialPeersRange`` raised to cover them (a copy written to a folder
+  of the user's own in the temporary directory; the whitelist and everything
+  else as shipped). Not
   always raised: each step of 32 costs every participant as many more
   announcement datagrams a second (measured: 13 idle participants used 1.7 %
   of a core more with 128 than with 32).
@@ -240,9 +241,17 @@ def peer_range(participants: int) -> int:
     return min(-(-participants // LOCALHOST_PEER_RANGE) * LOCALHOST_PEER_RANGE, MAX_PARTICIPANTS)
 
 
+def _widened_folder() -> Path:
+    """This user's folder of widened loopback profiles (``$TMPDIR/nni-dds-<uid>``)."""
+    import tempfile
+
+    return Path(tempfile.gettempdir()) / f"nni-dds-{os.getuid()}"
+
+
 def is_widened_loopback(path: str) -> bool:
-    """Whether ``path`` is a copy of the loopback profile written by :func:`loopback_profile_for`."""
-    return Path(path).name.startswith(_WIDENED_PREFIX)
+    """Whether ``path`` is a copy of the loopback profile written by :func:`loopback_profile_for` (in its folder)."""
+    resolved = Path(path).resolve()
+    return resolved.parent == _widened_folder().resolve() and resolved.name.startswith(_WIDENED_PREFIX)
 
 
 def loopback_profile_for(participants: int) -> Path:
@@ -256,13 +265,12 @@ def loopback_profile_for(participants: int) -> Path:
     half-written file).
     """
     import hashlib
-    import tempfile
     import xml.etree.ElementTree as ElementTree
 
     shipped = network_profile(DEFAULT_NETWORK)
     peers = peer_range(participants)
     digest = hashlib.sha256(shipped.read_bytes()).hexdigest()[:12]
-    folder = Path(tempfile.gettempdir()) / f"nni-dds-{os.getuid()}"
+    folder = _widened_folder()
     folder.mkdir(mode=0o700, exist_ok=True)
     status = folder.stat()
     if status.st_uid != os.getuid() or status.st_mode & 0o077:
