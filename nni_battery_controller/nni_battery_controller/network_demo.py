@@ -4,8 +4,7 @@ For each battery limit b it starts the MCAP logger, one controller node per
 generator of the case (namespace ``/gen<i>``, g measured, b at every generator
 unless ``--gen-b`` says otherwise; ``--deployment separate``, the default: a
 process each; ``composed``: all in one process on one executor) and the
-network plant node, with
-localhost-only discovery on one ROS domain; lets the plant run its disturbance
+network plant node, with localhost-only discovery on one ROS domain; lets the plant run its disturbance
 to the end, stops the others and reads the one recording (every namespace)
 back. Each run is judged with the offline network study's assessment
 (``network_sim.assess_network``) on the recorded trajectory and printed as
@@ -69,6 +68,7 @@ from nni_battery_controller.network_deployment import (
     start_controllers,
 )
 from nni_battery_controller.network_sim import ANGLE_REFERENCES, NetworkLaw, assess_network
+from nni_msgs_adapter.recording.mcap_logger import SUBSCRIBED_PREFIX
 from nni_msgs_adapter.recording.runs import network_trajectory, read_generator_runs
 from nni_msgs_adapter.ros.cli_support import (
     CliError,
@@ -86,6 +86,10 @@ from nni_plant_sim.network_plant_node import SUMMARY_PREFIX, parameters as plant
 
 PROG = "nni-demo"
 PLANT = "nni_plant_sim.network_plant_node"
+#: Longest wait, s, for the logger to subscribe to every controller's topics before the plant starts.
+RECORDER_WAIT_S = 120.0
+#: Each controller's topics the logger must record from the first sample on (the plant's it waits for itself).
+CONTROLLER_TOPICS = ("battery/command", "controller/state")
 #: (option dest, NetworkLaw field) of each gain.
 GAINS = (("tau", "tau_s"), ("gain_k", "gain_k"), ("gain_l", "gain_l"), ("alpha", "alpha"))
 #: The plant's counters shown per generator: the trust counters (any non-zero one compromises a run) and
@@ -205,7 +209,8 @@ def run_metadata(args, plant: dict, controllers: dict) -> dict:
     """The recording's ``nni_run`` record: the case, the scenario, every node's parameters, mode, rate, version."""
     values = {key: value for key, value in args.scenario_values.items() if key != "scenario"}
     return {"case": args.case, "scenario": {"name": args.scenario, **values}, "network_plant": plant,
-            "controllers": controllers, "deployment": args.deployment, "mode": args.mode, "rate_hz": args.rate, "software_version": software_version()}
+            "controllers": controllers, "deployment": args.deployment, "mode": args.mode, "rate_hz": args.rate,
+            "software_version": software_version()}
 
 
 def generator_result(outcome_json: dict, loop: dict, counts: dict, namespace: str) -> dict:
@@ -244,6 +249,27 @@ def wait_for_bridge(bridge, index: int, runs: dict, logs: Path) -> None:
                        f"{BRIDGE_WAIT_S:g} s (logs in {logs})") from None
 
 
+def wait_for_recorder(logger, spaces, logs: Path) -> None:
+    """Wait until the logger has subscribed to every controller's topics (else CliError naming those it has not).
+
+    The plant waits for the logger and the controllers on each ``pmu``, not for the logger to have
+    found the controllers' writers: with the composed deployment's one participant of many endpoints,
+    under load, the logger once found /gen3's and /gen4's only after 70 samples (recording 27 of 100
+    commands), so the plant starts only once these subscriptions exist.
+    """
+    wanted = {f"/{ns}/{topic}" for ns in spaces for topic in CONTROLLER_TOPICS}
+    deadline = time.monotonic() + RECORDER_WAIT_S
+    while True:
+        missing = wanted - {line.split(SUBSCRIBED_PREFIX, 1)[1].strip() for line in logger.output().splitlines()
+                            if SUBSCRIBED_PREFIX in line}
+        if not missing:
+            return
+        if logger.poll() is not None or time.monotonic() > deadline:
+            raise CliError(f"the logger did not subscribe to {len(missing)} controller topic(s) within "
+                           f"{RECORDER_WAIT_S:g} s ({', '.join(sorted(missing)[:3])} ...; logs in {logs})")
+        time.sleep(0.05)
+
+
 def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
     """One run: logger, a controller per generator, the network plant; returns (summary entry, trajectory).
 
@@ -262,6 +288,7 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
             "output_path": str(recording), "discovery_period_s": 0.1,
             "run_metadata": json.dumps(run_metadata(args, plant_params, controllers))})
         started_controllers = start_controllers(procs, controllers, args.deployment)
+        wait_for_recorder(logger, spaces, logs)
         plant = procs.start_node("network_plant", PLANT, plant_params)
         finish_plant(procs, plant, args, run_label(args, b), SUMMARY_PREFIX)
         for controller in started_controllers:
@@ -273,6 +300,8 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
     loops = plant_summary(plant.output(), SUMMARY_PREFIX)
     for ns in spaces:
         check_complete(recording, counts.get(f"/{ns}/pmu", 0), int(loops[ns]["measurements"]), logs, f" to /{ns}")
+        check_complete(recording, counts.get(f"/{ns}/battery/command", 0), int(loops[ns]["commands"]), logs,
+                       f" from /{ns}'s controller", "battery commands the plant received")
     runs = read_generator_runs(recording)
     if bridge is not None:
         wait_for_bridge(bridge, index, runs, logs)
@@ -281,7 +310,8 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
     outcome_json = outcome.to_json()
     result = {"b": json_b(b), "gen_b": {f"gen{i + 1}": json_b(v) for i, v in sorted(args.gen_limits.items())},
               "reference": args.reference, **{k: v for k, v in outcome_json.items() if k != "generators"},
-              "deployment": args.deployment, "mode": args.mode, "rate_hz": args.rate, "recording": str(recording), "wall_time_s": round(wall_s, 3),
+              "deployment": args.deployment, "mode": args.mode, "rate_hz": args.rate, "recording": str(recording),
+              "wall_time_s": round(wall_s, 3),
               "generators": {ns: generator_result(g, loops[ns], counts, ns)
                              for ns, g in zip(spaces, outcome_json["generators"])}}
     compromised = {ns: reasons for i, ns in enumerate(spaces)
