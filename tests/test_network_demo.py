@@ -80,17 +80,33 @@ def marked_processes(marker: str) -> list[str]:
     return found
 
 
+def participants_env(pid: int) -> str | None:
+    """The NNI_DDS_PARTICIPANTS a process was started with (None: not set, or the process is gone)."""
+    try:
+        entries = (Path(f"/proc/{pid}") / "environ").read_bytes().split(b"\0")
+    except OSError:
+        return None
+    found = [entry.split(b"=", 1)[1].decode() for entry in entries if entry.startswith(b"NNI_DDS_PARTICIPANTS=")]
+    return found[0] if found else None
+
+
 def run_demo(args: list[str], domain: int, timeout: float = 600) -> tuple[subprocess.CompletedProcess, set, str]:
-    """Run nni-demo to the end; its result, every child process (pid, start time) seen while it ran, its marker."""
+    """Run nni-demo to the end; its result, every child process (pid, start time) seen while it ran, its marker.
+
+    The result's ``participants`` is the set of NNI_DDS_PARTICIPANTS values the children were started with."""
     env, marker = marked_env(domain)
     proc = subprocess.Popen([str(DEMO), *args, "--domain-id", str(domain)], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     seen: set = set()
+    counts: dict = {}
     done = threading.Event()
 
     def watch():
         while not done.is_set():
             seen.update(children_of(proc.pid))
+            for child in seen:  # read again until the child has exec'd (a fork shows the demo's own environment)
+                if counts.get(child) is None:
+                    counts[child] = participants_env(child[0])
             time.sleep(0.05)
 
     watcher = threading.Thread(target=watch, daemon=True)
@@ -100,7 +116,9 @@ def run_demo(args: list[str], domain: int, timeout: float = 600) -> tuple[subpro
     finally:
         done.set()
         watcher.join()
-    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err), seen, marker
+    result = subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+    result.participants = set(counts.values())
+    return result, seen, marker
 
 
 def assert_nothing_left(children: set, marker: str) -> None:
@@ -144,6 +162,7 @@ def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_an
     tmp_path, result, children, marker = separate_kundur_demo
     assert result.returncode == 0, result.stderr
     assert len(children) == 6, "logger, four controllers, plant"
+    assert result.participants == {"6"}, "each child is told how many processes the deployment has"
     assert_nothing_left(children, marker)
     net = load_network("kundur_two_area")
     limits = np.array([0.1, 0.0, 0.1, 0.1])
@@ -206,6 +225,7 @@ def test_the_composed_deployment_gives_the_separate_processes_rows_and_trajector
     result, children, marker = kundur_demo(tmp_path, "composed")
     assert result.returncode == 0, result.stderr
     assert len(children) == 3, "logger, one composed_controllers process, plant"
+    assert result.participants == {"3"}
     assert_nothing_left(children, marker)
     assert "their controllers composed in one process" in result.stdout.splitlines()[0], result.stdout
     names = load_network("kundur_two_area").names
@@ -269,6 +289,7 @@ def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
                                          "--out", str(tmp_path)], domain)
     assert result.returncode == 0, result.stderr
     assert len(children) == 12, "logger, ten controllers, plant"
+    assert result.participants == {"12"}
     assert_nothing_left(children, marker)
     net = load_network("ieee39")
     rows = table_rows(result.stdout, net.names)
