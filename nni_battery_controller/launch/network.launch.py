@@ -45,14 +45,14 @@ from nni_battery_controller.network_deployment import (
 from nni_battery_controller.network_sim import NetworkLaw
 from nni_msgs_adapter.ros.defaults import controller_defaults
 from nni_msgs_adapter.ros.processes import PARTICIPANTS_ENV
-from nni_plant_sim.cases import load_network
+from nni_plant_sim.cases import CASES, load_network
 from nni_plant_sim.network_plant_config import parameters as plant_node_parameters, scenario_from
 from nni_plant_sim.network_scenarios import SCENARIO_PARAMETERS
 
 #: Launch arguments other than the disturbance's: name -> (default, description). Numbers are read as ROS reads
 #: parameter text (YAML). The disturbance's come from the network plant node's table (:func:`arguments`).
 RUN_ARGUMENTS = {
-    "case": ("kundur_two_area", "shipped test system (kundur_two_area, ieee39, kundur_ring_52)"),
+    "case": ("kundur_two_area", f"shipped test system ({', '.join(CASES)})"),
     "mode": ("lockstep", "lockstep (simulated /clock) or realtime"),
     "duration_s": ("10.0", "simulated seconds to run, then shut down"),
     "pmu_rate_hz": ("50.0", "PMU reporting rate, frames/s (and the controllers' sampling rate)"),
