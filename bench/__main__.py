@@ -15,12 +15,14 @@ Each table sets a measurement beside a baseline taken in the same run:
    extrapolated, with the fraction of cells where the two disagree;
 4. network lockstep throughput (issue 14) of the network plant node with one
    controller process per generator for N = 1 (the SMIB plant node), 4
-   (kundur_two_area), 10 (ieee39) and 52 (kundur_ring_52) beside a chained
-   fan-out ping-pong to N echo processes, in alternating rounds, and the cost
-   per added generator;
+   (kundur_two_area) and 10 (ieee39) beside a chained fan-out ping-pong to N
+   echo processes, and with the controllers composed in one process for N =
+   10 and 52 (kundur_ring_52) beside a chained fan-out to N echo nodes
+   composed in one process, in alternating rounds, and the cost per added
+   generator of each deployment;
 5. network realtime at 50 frames/s, ieee39's 10 controllers as separate
-   processes and (when ``nni_battery_controller.composed_controllers`` is in
-   the tree) composed in one, per generator beside the timed fan-out;
+   processes and composed in one, per generator beside the timed fan-out to
+   echoes deployed alike;
 6. memory (and CPU) per controller process and per composed controller.
 
 Node processes are started exactly as ``nni-demo`` starts them; discovery stays
@@ -32,7 +34,6 @@ for development; its numbers are not the ones to publish.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import math
 import os
@@ -45,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nni_msgs_adapter.ros.processes import ChildError, Supervisor
+from nni_msgs_adapter.ros.processes import ChildError, Supervisor, with_participants
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Targets of issue 5 (ratios are measured in the same run).
@@ -64,16 +65,16 @@ NETWORK_FLOOR_RATIO_TARGET = 2.0
 #: The network benchmarks' PMU rate (the network plant's default) and battery limit (the network tests').
 NETWORK_RATE_HZ = 50.0
 NETWORK_BATTERY_LIMIT_PU = 0.1
-#: Lockstep scaling, (case, alternating rounds): None is N = 1 (the SMIB plant node), then the network cases
-#: by size; the 52 controller processes take minutes to start and discover each other, so one round there.
-NETWORK_LOCKSTEP_CASES = ((None, 3), ("kundur_two_area", 3), ("ieee39", 3), ("kundur_ring_52", 1))
-NETWORK_LOCKSTEP_QUICK_CASES = ((None, 1), ("kundur_two_area", 1))
-#: Participants rmw_fastrtps (Jazzy) discovers on one host under ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST.
-LOCALHOST_PEER_RANGE = 32
+#: Lockstep scaling, (case, alternating rounds, deployment): None is N = 1 (the SMIB plant node), then the
+#: network cases by size, a controller process each, then composed in one process (network_deployment.DEPLOYMENTS).
+#: No separate N = 52 row: 52 controller processes (and 52 echo processes for its floor) on 2 cores are the
+#: machine's load, not the deployment's cost; at that size the controllers run composed.
+NETWORK_LOCKSTEP_CASES = ((None, 3, "separate"), ("kundur_two_area", 3, "separate"), ("ieee39", 3, "separate"),
+                          ("ieee39", 3, "composed"), ("kundur_ring_52", 3, "composed"))
+NETWORK_LOCKSTEP_QUICK_CASES = ((None, 1, "separate"), ("kundur_two_area", 1, "separate"),
+                                ("kundur_two_area", 1, "composed"), ("kundur_ring_52", 1, "composed"))
 #: What --only selects (all by default).
 BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime")
-#: The composed deployment of issue 14 (one process, N controller nodes on one executor).
-COMPOSED_MODULE = "nni_battery_controller.composed_controllers"
 
 
 def parse_args(argv=None):
@@ -82,9 +83,6 @@ def parse_args(argv=None):
     parser.add_argument("--quick", action="store_true", help="short runs (development; not for publishing)")
     parser.add_argument("--only", nargs="+", choices=BENCHMARKS, default=list(BENCHMARKS),
                         help="run only these benchmarks")
-    parser.add_argument("--composed", choices=("auto", "yes", "no"), default="auto",
-                        help=f"network-realtime: also the composed deployment ({COMPOSED_MODULE}); auto: when it "
-                             "is in this tree, yes: refuse to run without it")
     parser.add_argument("--out", type=Path, default=ROOT / "BENCHMARKS.md", help="report path (default BENCHMARKS.md)")
     parser.add_argument("--domain-id", type=int, default=87, help="ROS_DOMAIN_ID of the benchmark (default 87)")
     parser.add_argument("--rates", type=float, nargs="+", default=[50.0, 100.0, 500.0, 1000.0],
@@ -92,8 +90,6 @@ def parse_args(argv=None):
     args = parser.parse_args(argv)
     if not 0 <= args.domain_id <= 232:
         parser.error(f"ROS domain id must be within 0..232, got {args.domain_id}")
-    if args.composed == "yes" and not composed_available():
-        parser.error(f"--composed yes: {COMPOSED_MODULE} is not in this tree")
     return args
 
 
@@ -139,17 +135,20 @@ CONTROLLER_AS_PEER = [sys.executable, "-m", "nni_battery_controller.controller_n
 
 
 def pingpong(env: dict, log_dir: Path, mode: str, rate_hz: float = 100.0, duration_s: float = 0.0,
-             samples: int = 0, peer: list[str] | None = None, fanout: int = 0) -> dict:
-    """One ping-pong run: the ping and the bare echo (or ``peer``), or ``fanout`` echoes in /gen1.. /genN.
+             samples: int = 0, peer: list[str] | None = None, fanout: int = 0, composed: bool = False) -> dict:
+    """One ping-pong run: the ping and the bare echo (or ``peer``), or ``fanout`` echoes in /gen1.. /genN
+    (``composed``: as nodes of one echo process, on one executor).
 
     Returns the ping's JSON result.
     """
     from bench.pingpong import RESULT_PREFIX, fanout_namespaces
 
     echo = [sys.executable, "-m", "bench.pingpong", "echo"]
-    env, peer_range = dds_environment(env, log_dir, fanout + 1)
+    env = with_participants(env, 2 if composed else max(fanout, 1) + 1)
     with children(env, log_dir) as procs:
-        if fanout:
+        if composed:
+            procs.start("echoes", echo + ["--composed", str(fanout)])
+        elif fanout:
             for ns in fanout_namespaces(fanout):
                 procs.start(f"echo{ns.replace('/', '_')}", echo + ["--ros-args", "-r", f"__ns:={ns}"])
         else:
@@ -165,45 +164,8 @@ def pingpong(env: dict, log_dir: Path, mode: str, rate_hz: float = 100.0, durati
             stop_together(procs)
         for line in procs["ping"].output().splitlines():
             if line.startswith(RESULT_PREFIX):
-                return {**json.loads(line[len(RESULT_PREFIX):]), "echo_rss_kib": echo_rss,
-                        "peer_range": peer_range}
+                return {**json.loads(line[len(RESULT_PREFIX):]), "echo_rss_kib": echo_rss}
     raise RuntimeError("ping-pong printed no result")
-
-
-def dds_environment(env: dict, log_dir: Path, participants: int) -> tuple[dict, int | None]:
-    """``env`` for a run of ``participants`` processes on this host; with more than rmw's localhost range, a profile.
-
-    rmw_fastrtps (Jazzy) under ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST sends
-    its discovery announcements to the ports of the first
-    ``LOCALHOST_PEER_RANGE`` participants of the domain only (its UDP
-    transport's ``maxInitialPeersRange``): a 33rd process is never discovered
-    (measured: with 52 controllers the plant never saw gen33's). Beyond it,
-    the run gets the shipped loopback profile with ``maxInitialPeersRange``
-    raised on its UDP transport (written to the run's log directory; the
-    nodes say on their log that a profile of the user's own is in use).
-    Returns the environment and the range set (None: the shipped profile).
-    """
-    if participants <= LOCALHOST_PEER_RANGE:
-        return env, None
-    import xml.etree.ElementTree as ElementTree
-
-    from nni_msgs_adapter.ros.node_main import DEFAULT_NETWORK, network_profile
-
-    peers = -(-participants // LOCALHOST_PEER_RANGE) * LOCALHOST_PEER_RANGE
-    namespace = "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"
-    ElementTree.register_namespace("", namespace)
-    tree = ElementTree.parse(network_profile(DEFAULT_NETWORK))
-    udp = [d for d in tree.iter(f"{{{namespace}}}transport_descriptor")
-           if d.findtext(f"{{{namespace}}}type") == "UDPv4"]
-    if len(udp) != 1:
-        raise RuntimeError(f"the shipped DDS profile has {len(udp)} UDPv4 transports, expected one")
-    peer_range = ElementTree.Element(f"{{{namespace}}}maxInitialPeersRange")
-    peer_range.text = str(peers)
-    udp[0].insert(2, peer_range)
-    log_dir.mkdir(parents=True, exist_ok=True)
-    path = log_dir / "fastdds_profiles_many_participants.xml"
-    tree.write(path, xml_declaration=True, encoding="UTF-8")
-    return dict(env, FASTRTPS_DEFAULT_PROFILES_FILE=str(path)), peers
 
 
 def stop_together(procs: Supervisor) -> None:
@@ -347,14 +309,6 @@ def bench_lockstep(env, log_root: Path, rates, sim_duration_s: float, chained_sa
 # --- networks (issue 14) --------------------------------------------------------------------
 
 
-def network_controller_parameters(net, index: int, rate_hz: float) -> dict:
-    """Generator ``index``'s controller as the network tests run it: g measured, its pre-fault angle and power."""
-    scale = float(net.mbase_mva[index] / net.base_mva)
-    return {"restoring_power": "measured", "reference_angle_rad": float(net.delta_bar_rad[index]),
-            "p_mech_pu": float(net.p_mech_pu[index]) / scale, "battery_limit_pu": NETWORK_BATTERY_LIMIT_PU,
-            "sample_rate_hz": rate_hz}
-
-
 def rss_kib(pid: int) -> int:
     """Resident set size of a running process, KiB (``VmRSS`` of /proc/<pid>/status)."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -363,48 +317,40 @@ def rss_kib(pid: int) -> int:
     raise RuntimeError(f"process {pid} shows no VmRSS")
 
 
-def composed_available() -> bool:
-    """True when the composed deployment (the ``ctl`` helper's module) is in this tree."""
-    return importlib.util.find_spec(COMPOSED_MODULE) is not None
-
-
 def network_loop(env: dict, log_dir: Path, case: str, mode: str, rate_hz: float, duration_s: float,
-                 composed: bool = False) -> dict:
-    """The network plant node and one controller per generator (N processes, or N nodes composed in one).
+                 deployment: str = "separate") -> dict:
+    """The network plant node and one controller per generator, deployed as ``nni-demo --case --deployment``
+    deploys them (N processes, or N nodes composed in one: ``network_deployment.start_controllers``), each with
+    the parameters ``nni-demo`` gives it (g measured, the controller's default gains).
 
     Returns the plant's summary (``{namespace: values}``) and the controllers'
     resident set sizes, read at the end of the run while they are still up.
     """
+    from nni_battery_controller.network_deployment import (
+        controller_parameters,
+        default_law,
+        namespaces,
+        start_controllers,
+    )
     from nni_plant_sim.cases import load_network
 
     net = load_network(case)
-    namespaces = [f"/gen{i + 1}" for i in range(net.size)]
-    env, peer_range = dds_environment(env, log_dir, 2 if composed else net.size + 1)
+    law = default_law(net)
+    parameters = {f"/{ns}": controller_parameters(net, i, NETWORK_BATTERY_LIMIT_PU, rate_hz, law)
+                  for i, ns in enumerate(namespaces(net))}
+    env = with_participants(env, 1 + (1 if deployment == "composed" else net.size))
     with children(env, log_dir) as procs:
-        if composed:
-            import yaml
-
-            params_file = log_dir / "controllers.yaml"  # one section per node, as composed_controllers reads them
-            log_dir.mkdir(parents=True, exist_ok=True)
-            params_file.write_text(yaml.safe_dump({f"{ns}/controller": {"ros__parameters": network_controller_parameters(
-                net, i, rate_hz)} for i, ns in enumerate(namespaces)}, default_flow_style=False))
-            controllers = [procs.start_node("controllers", COMPOSED_MODULE, {"namespaces": namespaces},
-                                            ("--params-file", str(params_file)))]
-        else:
-            controllers = [procs.start_node(f"controller{ns.replace('/', '_')}", "nni_battery_controller.controller_node",
-                                            network_controller_parameters(net, i, rate_hz), ("-r", f"__ns:={ns}"))
-                           for i, ns in enumerate(namespaces)]
+        controllers = start_controllers(procs, parameters, deployment)
         plant = procs.start_node("plant", "nni_plant_sim.network_plant_node",
                                  {"case": case, "mode": mode, "duration_s": duration_s, "pmu_rate_hz": rate_hz,
                                   "wait_for_subscribers": 1, "wait_timeout_s": 600.0})
         try:
-            return run_network_plant(plant, controllers, case, mode, net.size, duration_s, peer_range)
+            return run_network_plant(plant, controllers, case, mode, net.size, duration_s)
         finally:
             stop_together(procs)
 
 
-def run_network_plant(plant, controllers, case: str, mode: str, size: int, duration_s: float,
-                      peer_range) -> dict:
+def run_network_plant(plant, controllers, case: str, mode: str, size: int, duration_s: float) -> dict:
     """Wait for the plant's run (stopped as partial past its limit); its summary, the controllers' RSS and CPU."""
     from nni_plant_sim.network_plant_node import SUMMARY_PREFIX
 
@@ -427,7 +373,7 @@ def run_network_plant(plant, controllers, case: str, mode: str, size: int, durat
     for line in plant.output().splitlines():
         if line.startswith(SUMMARY_PREFIX):
             return {"summary": json.loads(line[len(SUMMARY_PREFIX):]), "rss_kib": rss, "cpu_share": cpu,
-                    "size": size, "peer_range": peer_range, "partial": partial}
+                    "size": size, "partial": partial}
     raise RuntimeError(f"the network plant ({case}) printed no summary")
 
 
@@ -446,54 +392,60 @@ def generator_percentiles(summary: dict, name: str) -> dict:
 
 def bench_network_lockstep(env, log_root: Path, cases, rate_hz: float, sim_duration_s: float,
                            chained_samples: int) -> list[dict]:
-    """Lockstep of each case with N controller processes, beside a chained fan-out to N echoes, alternating.
+    """Lockstep of each case and deployment beside a chained fan-out to N echoes deployed alike, alternating.
 
-    ``cases`` holds (case, rounds); the simulated time and the round trips are
-    split among the rounds. Case ``None`` is N = 1: the SMIB plant node with
-    its controller beside the one-echo chained ping-pong (section 2's pair).
+    ``cases`` holds (case, rounds, deployment); the simulated time and the round
+    trips are split among the rounds. Case ``None`` is N = 1: the SMIB plant node
+    with its controller beside the one-echo chained ping-pong (section 2's pair).
     """
     rows = []
-    for case, rounds in cases:
+    for case, rounds, deployment in cases:
         label = case or "smib"
-        print(f"bench: network lockstep {label} at {rate_hz:g}/s, {rounds} x (chained fan-out of "
+        print(f"bench: network lockstep {label} ({deployment}) at {rate_hz:g}/s, {rounds} x (chained fan-out of "
               f"{chained_samples // rounds}, {sim_duration_s / rounds:g} simulated s of the loop)",
               file=sys.stderr, flush=True)
         try:
-            rows.append(network_lockstep_row(env, log_root, case, rounds, rate_hz, sim_duration_s, chained_samples))
+            rows.append(network_lockstep_row(env, log_root, case, rounds, rate_hz, sim_duration_s, chained_samples,
+                                             deployment))
         except (ChildError, RuntimeError) as error:
-            print(f"bench: network lockstep {label}: not completed: {error}", file=sys.stderr, flush=True)
-            rows.append({"case": label, "error": str(error).splitlines()[0][:300]})
+            print(f"bench: network lockstep {label} ({deployment}): not completed: {error}", file=sys.stderr,
+                  flush=True)
+            rows.append({"case": label, "deployment": deployment, "error": str(error).splitlines()[0][:300]})
     return rows
 
 
 def network_lockstep_row(env, log_root: Path, case, rounds: int, rate_hz: float, sim_duration_s: float,
-                         chained_samples: int) -> dict:
-    """One row of section 4: ``rounds`` alternating pairs of a lockstep run and a chained fan-out."""
+                         chained_samples: int, deployment: str = "separate") -> dict:
+    """One row of section 4: ``rounds`` alternating pairs of a lockstep run and a chained fan-out.
+
+    ``composed``: the controllers composed in one process, the fan-out's echoes too."""
     part_s, part_samples = sim_duration_s / rounds, chained_samples // rounds
     label = case or "smib"
+    name = label if deployment == "separate" else f"{label}_{deployment}"
     pairs, partial = [], None
     for index in range(1, rounds + 1):
         if case is None:
-            chained = pingpong(env, log_root / f"fanout_chained_{label}_{index}", "chained", samples=part_samples)
-            final = closed_loop(env, log_root / f"net_lockstep_{label}_{index}", "lockstep", rate_hz, part_s)
+            chained = pingpong(env, log_root / f"fanout_chained_{name}_{index}", "chained", samples=part_samples)
+            final = closed_loop(env, log_root / f"net_lockstep_{name}_{index}", "lockstep", rate_hz, part_s)
             summary, size = {"gen1": final}, 1
         else:
-            run = network_loop(env, log_root / f"net_lockstep_{label}_{index}", case, "lockstep", rate_hz, part_s)
+            run = network_loop(env, log_root / f"net_lockstep_{name}_{index}", case, "lockstep", rate_hz, part_s,
+                               deployment)
             summary, size, partial = run["summary"], run["size"], run["partial"] or partial
-            chained = pingpong(env, log_root / f"fanout_chained_{label}_{index}", "chained",
-                               samples=part_samples, fanout=size)
+            chained = pingpong(env, log_root / f"fanout_chained_{name}_{index}", "chained",
+                               samples=part_samples, fanout=size, composed=deployment == "composed")
         first = next(iter(summary.values()))
         sim_s, wall_s = float(first["sim_time_s"]), float(first["run_wall_s"])
         if not (sim_s > 0 and wall_s > 0):
             raise RuntimeError(f"lockstep {label}: the plant's final status shows no run ({first})")
         round_trip_s = float(np.mean(chained["round_trips_ns"])) * 1e-9
         pairs.append({"round_trip_s": round_trip_s, "sim_s": sim_s, "wall_s": wall_s, "summary": summary,
-                      "floor_ratio": ((1.0 / rate_hz) / round_trip_s) / (sim_s / wall_s),
-                      "peer_range": chained["peer_range"]})
+                      "floor_ratio": ((1.0 / rate_hz) / round_trip_s) / (sim_s / wall_s)})
     sim_s, wall_s = sum(p["sim_s"] for p in pairs), sum(p["wall_s"] for p in pairs)
     round_trip_s = float(np.median([p["round_trip_s"] for p in pairs]))
     return {
-        "case": label, "generators": size, "rate_hz": rate_hz, "rounds": rounds, "sim_duration_s": sim_s,
+        "case": label, "deployment": deployment, "generators": size, "rate_hz": rate_hz, "rounds": rounds,
+        "sim_duration_s": sim_s,
         "run_wall_s": wall_s, "throughput": sim_s / wall_s, "floor_throughput": (1.0 / rate_hz) / round_trip_s,
         "floor_ratio": float(np.median([p["floor_ratio"] for p in pairs])),
         "round_ratios": [p["floor_ratio"] for p in pairs], "round_trip_mean_ms": round_trip_s * 1e3,
@@ -501,14 +453,14 @@ def network_lockstep_row(env, log_root: Path, case, rounds: int, rate_hz: float,
         **{f"{name}_ms": {q: float(np.median([generator_percentiles(p["summary"], name)[q] for p in pairs]))
                           for q in ("p50", "p99")} for name in ("latency", "turnaround")},
         "deadline_misses": sum(int(v["deadline_misses"]) for p in pairs for v in p["summary"].values()),
-        "peer_range": pairs[0]["peer_range"], "partial": partial,
+        "partial": partial,
     }
 
 
 def per_generator_cost(rows: list[dict]) -> dict:
     """Least-squares slopes of the cycle and of the floor's round trip against N (ms per added generator).
 
-    Over the network plant's rows when there are two or more, else over every row.
+    Over the network plant's rows (of one deployment) when there are two or more, else over every row.
     """
     network = [row for row in rows if row["case"] != "smib"]
     fit = network if len(network) >= 2 else rows
@@ -520,52 +472,47 @@ def per_generator_cost(rows: list[dict]) -> dict:
     return {"sizes": [int(n) for n in sizes], "cycle_ms": float(cycle), "floor_ms": float(floor)}
 
 
-def bench_network_realtime(env, log_root: Path, case: str, rate_hz: float, duration_s: float, rounds: int,
-                           composed: bool) -> dict:
-    """Realtime with N controller processes (and, if ``composed``, N composed in one) beside a timed fan-out.
+def bench_network_realtime(env, log_root: Path, case: str, rate_hz: float, duration_s: float, rounds: int) -> dict:
+    """Realtime with N controller processes and with N composed in one, each beside its deployment's timed fan-out.
 
-    In ``rounds`` alternating rounds of ``duration_s / rounds``: the fan-out to
-    N echoes at the same rate, the loop with separate processes, the composed
-    loop. Per generator: the ping-pong's round trips pooled, the loop's
-    median of the rounds' p50 and p99 (from the plant's diagnostics), misses
-    summed; memory: the controllers' resident sets at the end of each run.
+    In ``rounds`` alternating rounds of ``duration_s / rounds``, per deployment: the loop, then the timed
+    fan-out to N echoes deployed alike (N processes, or N nodes of one process) at the same rate. Per
+    generator: the ping-pong's round trips pooled, the loop's median of the rounds' p50 and p99 (from the
+    plant's diagnostics), misses summed; memory: the controllers' and echoes' resident sets at the end of
+    each run.
     """
     part_s = duration_s / rounds
-    kinds = ("separate", "composed") if composed else ("separate",)
-    print(f"bench: network realtime {case} at {rate_hz:g}/s, {rounds} x ({part_s:g} s fan-out ping-pong, "
-          f"{part_s:g} s loop with {' and '.join(kinds)} controllers)", file=sys.stderr, flush=True)
-    pings, loops = [], {kind: [] for kind in kinds}
+    kinds = ("separate", "composed")
+    print(f"bench: network realtime {case} at {rate_hz:g}/s, {rounds} x ({part_s:g} s loop, then {part_s:g} s "
+          f"fan-out ping-pong, with {' and '.join(kinds)} controllers and echoes)", file=sys.stderr, flush=True)
+    pings, loops = {kind: [] for kind in kinds}, {kind: [] for kind in kinds}
     for index in range(1, rounds + 1):
-        size = None
         for kind in kinds:
             run = network_loop(env, log_root / f"net_realtime_{case}_{kind}_{index}", case, "realtime", rate_hz,
-                               part_s, composed=kind == "composed")
+                               part_s, kind)
             loops[kind].append(run)
-            size = run["size"]
-        pings.append(pingpong(env, log_root / f"fanout_timed_{case}_{index}", "timed", rate_hz=rate_hz,
-                              duration_s=part_s, fanout=size))
+            pings[kind].append(pingpong(env, log_root / f"fanout_timed_{case}_{kind}_{index}", "timed",
+                                        rate_hz=rate_hz, duration_s=part_s, fanout=run["size"],
+                                        composed=kind == "composed"))
     namespaces = list(loops["separate"][0]["summary"])
     generators = []
     for i, ns in enumerate(namespaces):
-        row = {"namespace": ns, "machine": loops["separate"][0]["summary"][ns]["machine"],
-               "pingpong_ms": percentiles_ms([t for ping in pings for t in ping["echo_round_trips_ns"][i]]),
-               "pingpong_deadline_misses": sum(ping["echo_deadline_misses"][i] for ping in pings)}
+        row = {"namespace": ns, "machine": loops["separate"][0]["summary"][ns]["machine"]}
         for kind in kinds:
             finals = [run["summary"][ns] for run in loops[kind]]
             row[kind] = {"p50": float(np.median([float(f["latency_p50_ms"]) for f in finals])),
                          "p99": float(np.median([float(f["latency_p99_ms"]) for f in finals])),
                          "deadline_misses": sum(int(f["deadline_misses"]) for f in finals),
                          "measurements": sum(int(f["measurements"]) for f in finals)}
+            row[f"{kind}_floor"] = {
+                **percentiles_ms([t for ping in pings[kind] for t in ping["echo_round_trips_ns"][i]]),
+                "deadline_misses": sum(ping["echo_deadline_misses"][i] for ping in pings[kind])}
         generators.append(row)
-    memory = {"separate_kib": [kib for run in loops["separate"] for kib in run["rss_kib"]],
-              "separate_cpu": [share for run in loops["separate"] for share in run["cpu_share"]],
-              "echo_kib": [kib for ping in pings for kib in ping["echo_rss_kib"]]}
-    if composed:
-        memory["composed_kib"] = [run["rss_kib"][0] for run in loops["composed"]]
-        memory["composed_cpu"] = [run["cpu_share"][0] for run in loops["composed"]]
+    memory = {f"{kind}_kib": [kib for run in loops[kind] for kib in run["rss_kib"]] for kind in kinds}
+    memory.update({f"{kind}_cpu": [share for run in loops[kind] for share in run["cpu_share"]] for kind in kinds})
+    memory.update({f"{kind}_echo_kib": [kib for ping in pings[kind] for kib in ping["echo_rss_kib"]] for kind in kinds})
     return {"case": case, "generators": generators, "size": len(namespaces), "rate_hz": rate_hz,
-            "duration_s": duration_s, "rounds": rounds, "kinds": kinds, "memory": memory,
-            "pingpong_deadline_misses": sum(ping["deadline_misses"] for ping in pings)}
+            "duration_s": duration_s, "rounds": rounds, "kinds": kinds, "memory": memory}
 
 
 def bench_roa(per_b_subsample: int) -> dict:
@@ -760,55 +707,56 @@ def report(command: str, machine: dict, quick: bool, latency, share, lockstep, r
 
 
 def network_lockstep_section(rows: list[dict]) -> list[str]:
-    """Section 4: lockstep throughput against N beside the chained fan-out, and the cost per added generator."""
+    """Section 4: lockstep throughput against N beside the chained fan-out, per deployment, and the cost per added
+    generator of each deployment."""
     lines = ["## 4. Network lockstep throughput beside its fan-out floor (issue 14)", "",
              "The network plant node (`nni_plant_sim.network_plant_node`, its default disturbance: a bolted fault "
-             f"at bus 7 cleared after 0.1 s) in lockstep at {rows[0]['rate_hz']:g} frames/s with one controller "
-             f"process per generator (`controller_node` in `/gen<i>`, g measured, b = {NETWORK_BATTERY_LIMIT_PU} pu); "
-             "a sample advances when every generator's command has arrived. N = 1 is the SMIB plant node "
-             "(`plant_node`, the paper's case) with its controller. Cases: `kundur_two_area` (N = 4), `ieee39` "
-             "(N = 10), `kundur_ring_52` (N = 52: 13 copies of the two-area system tied in a ring, "
-             "`nni_plant_sim/cases/replicated.py`). Floor: a chained fan-out ping-pong to N echo processes "
-             "(`bench/pingpong.py --fanout N`: one ping to every echo, the next when all N pongs are in; "
-             "N = 1: one echo), period / mean round trip. Each N runs as alternating pairs (lockstep run, then "
-             "fan-out), the simulated time and round trips split among them; floor / throughput is the median of "
-             "the pairs' ratios (each pair's in brackets). Cycle = wall time per sample; latency and "
-             "turnaround: the median over generators of each generator's p50 and p99 (plant diagnostics).", "",
-             "| N | case | simulated s / wall s | throughput (x real time) | floor (x real time) | floor / throughput "
-             "(rounds) | cycle (ms) | fan-out round trip (ms) | latency p50 / p99 (ms) | turnaround p50 / p99 (ms) "
-             "| misses |", "|---:|---|---:|---:|---:|---|---:|---:|---|---|---:|"]
+             f"at bus 7 cleared after 0.1 s) in lockstep at {rows[0].get('rate_hz', NETWORK_RATE_HZ):g} frames/s "
+             "with one controller per generator (`controller_node` in `/gen<i>`, g measured, "
+             f"b = {NETWORK_BATTERY_LIMIT_PU} pu, the parameters `nni-demo --case` gives); a sample advances when "
+             "every generator's command has arrived. Two deployments, as `nni-demo --case --deployment` starts "
+             "them: **separate**, a controller process per generator, and **composed**, all the case's "
+             "controllers as nodes of one `composed_controllers` process on one executor. N = 1 is the SMIB "
+             "plant node (`plant_node`, the paper's case) with its controller. Cases: `kundur_two_area` (N = 4), "
+             "`ieee39` (N = 10), `kundur_ring_52` (N = 52: 13 copies of the two-area system tied in a ring, "
+             "`nni_plant_sim/cases/replicated.py`). Floor: the same deployment's transport, a chained fan-out "
+             "ping-pong to N echoes (`bench/pingpong.py --fanout N`: one ping to every echo, the next when all N "
+             "pongs are in; N = 1: one echo), the echoes N processes (separate) or N nodes of one process on one "
+             "executor (composed, `pingpong echo --composed N`); period / mean round trip. Each row runs as "
+             "alternating pairs (lockstep run, then fan-out), the simulated time and round trips split among "
+             "them; floor / throughput is the median of the pairs' ratios (each pair's in brackets). Cycle = wall "
+             "time per sample; latency and turnaround: the median over generators of each generator's p50 and "
+             "p99 (plant diagnostics). No separate N = 52 row: 52 controller processes beside 52 echo processes "
+             "on this 2-core machine measure the machine's overload, not the deployment; at that size the "
+             "controllers run composed, as one substation computer would run them.", "",
+             "| N | case | deployment | simulated s / wall s | throughput (x real time) | floor (x real time) "
+             "| floor / throughput (rounds) | cycle (ms) | fan-out round trip (ms) | latency p50 / p99 (ms) "
+             "| turnaround p50 / p99 (ms) | misses |", "|---:|---|---|---:|---:|---:|---|---:|---:|---|---|---:|"]
     failed = [row for row in rows if "error" in row]
     rows = [row for row in rows if "error" not in row]
     for row in rows:
         rounds = ", ".join(f"{ratio:.2f}" for ratio in row["round_ratios"])
         case = f"{row['case']} (**partial**: {row['partial']})" if row["partial"] else row["case"]
-        lines.append(f"| {row['generators']}{' *' if row['peer_range'] else ''} | {case} | {row['sim_duration_s']:g} / {row['run_wall_s']:.2f} | "
+        lines.append(f"| {row['generators']} | {case} | {row['deployment']} | "
+                     f"{row['sim_duration_s']:g} / {row['run_wall_s']:.2f} | "
                      f"{row['throughput']:.1f} | {row['floor_throughput']:.1f} | **{row['floor_ratio']:.2f}** "
                      f"({rounds}) | {row['cycle_ms']:.3f} | {row['round_trip_mean_ms']:.3f} | "
                      f"{row['latency_ms']['p50']:.3f} / {row['latency_ms']['p99']:.3f} | "
                      f"{row['turnaround_ms']['p50']:.3f} / {row['turnaround_ms']['p99']:.3f} | "
                      f"{row['deadline_misses']} |")
     for row in failed:
-        lines.append(f"| - | {row['case']}: **not completed**: {row['error']} |" + " |" * 9)
-    widened = [row for row in rows if row["peer_range"]]
-    if widened:
-        lines += ["", f"\\* More than {LOCALHOST_PEER_RANGE} processes: rmw_fastrtps (Jazzy) under "
-                      f"ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST discovers the first {LOCALHOST_PEER_RANGE} "
-                      "participants of a domain on the host only (its `maxInitialPeersRange`), so with the shipped "
-                      "DDS profile a 33rd controller is never discovered and the plant waits for it until "
-                      "`wait_timeout_s`. These rows (loop and fan-out alike) ran with the shipped profile plus "
-                      f"`maxInitialPeersRange` {widened[0]['peer_range']} on its UDP transport "
-                      "(`bench/__main__.py: dds_environment`)."]
-    cost = per_generator_cost(rows)
-    if cost:
-        lines += ["", f"Cost per added generator (least-squares slope over N = "
-                      f"{', '.join(map(str, cost['sizes']))}): the cycle grows by **{cost['cycle_ms']:.3f} ms** per "
-                      f"generator, the floor's round trip by {cost['floor_ms']:.3f} ms."]
-    at10 = [row for row in rows if row["generators"] == 10]
-    if at10:
-        ratio = at10[0]["floor_ratio"]
-        lines += ["", f"Target at N = 10: within {NETWORK_FLOOR_RATIO_TARGET:g}x of the floor ({ratio:.2f}): "
-                      f"{verdict(ratio <= NETWORK_FLOOR_RATIO_TARGET)}."]
+        lines.append(f"| - | {row['case']}: **not completed**: {row['error']} | {row['deployment']} |" + " |" * 9)
+    for deployment in ("separate", "composed"):
+        cost = per_generator_cost([row for row in rows if row["deployment"] == deployment])
+        if cost:
+            lines += ["", f"Cost per added generator, {deployment} (least-squares slope over N = "
+                          f"{', '.join(map(str, cost['sizes']))}): the cycle grows by **{cost['cycle_ms']:.3f} ms** "
+                          f"per generator, the floor's round trip by {cost['floor_ms']:.3f} ms."]
+    for row in rows:
+        if row["generators"] == 10:
+            met = verdict(row["floor_ratio"] <= NETWORK_FLOOR_RATIO_TARGET)
+            lines += ["", f"Target at N = 10 ({row['deployment']}): within {NETWORK_FLOOR_RATIO_TARGET:g}x of the "
+                          f"floor ({row['floor_ratio']:.2f}): {met}."]
     return lines + [""]
 
 
@@ -816,63 +764,61 @@ def network_realtime_section(result: dict) -> list[str]:
     """Section 5: realtime per generator beside the timed fan-out, separate and composed; section 6: memory."""
     if "error" in result:
         return ["## 5. Network realtime (issue 14)", "", f"**Not completed**: {result['error']}", ""]
-    kinds = result["kinds"]
+    kinds, gens = result["kinds"], result["generators"]
     lines = [f"## 5. Network realtime at {result['rate_hz']:g} frames/s, {result['size']} controllers (issue 14)", "",
              f"`{result['case']}` in realtime (the PMU grid on the wall clock) for {result['duration_s']:g} s per "
-             f"deployment, as {result['rounds']} alternating round(s) (separate processes"
-             + (", composed" if "composed" in kinds else "") + ", then the timed fan-out ping-pong to "
-             f"{result['size']} echoes at the same rate). Latency per generator, measured at the plant from the "
-             "measurement's instant to its command's arrival: the median of the rounds' p50 and p99; the "
-             "ping-pong's per echo, from the tick's instant, pooled. A miss: an instant that finds the previous "
-             "sample unanswered, summed over the rounds.", ""]
-    if "composed" not in kinds:
-        lines += [f"Composed deployment: **not measured** (`{COMPOSED_MODULE}` is not in this tree).", ""]
-    header = "| generator | fan-out ping-pong p50 / p99 (ms) | misses |"
-    rule = "|---|---|---:|"
+             f"deployment, as {result['rounds']} alternating round(s): the loop with separate controller "
+             "processes, then the timed fan-out ping-pong to "
+             f"{result['size']} echo processes at the same rate; the loop with the controllers composed in one "
+             "process (`composed_controllers`), then the fan-out to as many echo nodes composed in one process "
+             "(`pingpong echo --composed N`). Latency per generator, measured at the plant from the measurement's "
+             "instant to its command's arrival: the median of the rounds' p50 and p99; the ping-pong's per echo, "
+             "from the tick's instant, pooled. A miss: an instant that finds the previous sample unanswered, "
+             "summed over the rounds.", ""]
+    header, rule = "| generator |", "|---|"
     for kind in kinds:
-        header += f" {kind} p50 / p99 (ms) | misses |"
-        rule += "---|---:|"
+        header += f" {kind} fan-out p50 / p99 (ms) | misses | {kind} loop p50 / p99 (ms) | misses |"
+        rule += "---|---:|---|---:|"
     lines += [header, rule]
-    for row in result["generators"]:
-        pp = row["pingpong_ms"]
-        line = (f"| {row['namespace']} ({row['machine']}) | {pp['p50']:.3f} / {pp['p99']:.3f} | "
-                f"{row['pingpong_deadline_misses']} |")
-        for kind in kinds:
-            line += f" {row[kind]['p50']:.3f} / {row[kind]['p99']:.3f} | {row[kind]['deadline_misses']} |"
-        lines.append(line)
-    gens = result["generators"]
-    line = (f"| median / total | {np.median([g['pingpong_ms']['p50'] for g in gens]):.3f} / "
-            f"{np.median([g['pingpong_ms']['p99'] for g in gens]):.3f} | "
-            f"{sum(g['pingpong_deadline_misses'] for g in gens)} |")
+
+    def cells(values: list[dict]) -> str:
+        return (f" {np.median([v['p50'] for v in values]):.3f} / {np.median([v['p99'] for v in values]):.3f} | "
+                f"{sum(v['deadline_misses'] for v in values)} |")
+
+    for row in gens:
+        lines.append(f"| {row['namespace']} ({row['machine']}) |"
+                     + "".join(cells([row[f"{kind}_floor"]]) + cells([row[kind]]) for kind in kinds))
+    lines += ["| median / total |" + "".join(cells([g[f"{kind}_floor"] for g in gens]) + cells([g[kind] for g in gens])
+                                             for kind in kinds), ""]
     for kind in kinds:
-        line += (f" {np.median([g[kind]['p50'] for g in gens]):.3f} / {np.median([g[kind]['p99'] for g in gens]):.3f}"
-                 f" | {sum(g[kind]['deadline_misses'] for g in gens)} |")
-    lines += [line, ""]
-    for kind in kinds:
-        ratio = np.median([g[kind]["p50"] for g in gens]) / np.median([g["pingpong_ms"]["p50"] for g in gens])
+        ratio = np.median([g[kind]["p50"] for g in gens]) / np.median([g[f"{kind}_floor"]["p50"] for g in gens])
         measurements = sum(g[kind]["measurements"] for g in gens)
-        lines.append(f"- {kind}: median p50 {ratio:.2f}x the fan-out's; {measurements} measurements in all, "
+        lines.append(f"- {kind}: median p50 {ratio:.2f}x its fan-out's; {measurements} measurements in all, "
                      f"{sum(g[kind]['deadline_misses'] for g in gens)} deadline misses.")
     memory = result["memory"]
     mib = lambda kib: kib / 1024.0  # noqa: E731
+    floor = np.median(memory["separate_echo_kib"])
     lines += ["", "## 6. Memory per controller (issue 14)", "",
               "Resident set size (`VmRSS`) at the end of each realtime run of section 5, while the processes are "
-              "up; beside it a bare echo process of the fan-out (rclpy, one node, one subscription and one "
-              "publisher), the floor of any ROS 2 Python process here. CPU: each controller process's user + "
-              "system time from the plant's start of the run to its end, over that wall time (% of one core).", "",
-              "| process | runs x processes | RSS median (MiB) | min .. max (MiB) | RSS per controller (MiB) "
-              "| CPU per controller, median (% of a core) |", "|---|---:|---:|---|---:|---:|"]
+              "up; beside it the fan-outs' echoes: a bare echo process (rclpy, one node, one subscription and one "
+              "publisher), the floor of any ROS 2 Python process here, and N echo nodes composed in one process. "
+              "CPU: each controller process's user + system time from the plant's start of the run to its end, "
+              "over that wall time (% of one core). Above the echo: the median RSS less the bare echo process's "
+              "median, per controller or echo node (what one more costs beyond the Python and rclpy floor every "
+              "process pays once).", "",
+              "| process | runs x processes | RSS median (MiB) | min .. max (MiB) | RSS per node (MiB) "
+              "| above the echo, per node (MiB) | CPU per controller, median (% of a core) |",
+              "|---|---:|---:|---|---:|---:|---:|"]
     for name, kib, cpu, per in (
-            ("bare echo (fan-out)", memory["echo_kib"], None, 1),
+            ("bare echo (fan-out), one process per echo", memory["separate_echo_kib"], None, 1),
+            ("echo nodes (fan-out), all in one process", memory["composed_echo_kib"], None, result["size"]),
             ("controller_node, one process per generator", memory["separate_kib"], memory["separate_cpu"], 1),
-            ("composed_controllers, all in one process", memory.get("composed_kib"), memory.get("composed_cpu"),
+            ("composed_controllers, all in one process", memory["composed_kib"], memory["composed_cpu"],
              result["size"])):
-        if not kib:
-            lines.append(f"| {name} | - | not measured | - | - | - |")
-            continue
         share = "-" if cpu is None else f"{100 * np.median(cpu) / per:.1f}"
+        above = mib(np.median(kib) - floor) / per
         lines.append(f"| {name} | {len(kib)} | {mib(np.median(kib)):.1f} | {mib(min(kib)):.1f} .. "
-                     f"{mib(max(kib)):.1f} | {mib(np.median(kib)) / per:.1f} | {share} |")
+                     f"{mib(max(kib)):.1f} | {mib(np.median(kib)) / per:.1f} | {above:+.1f} | {share} |")
     return lines + [""]
 
 
@@ -923,8 +869,7 @@ def main(argv=None) -> int:
         try:
             network_realtime = bench_network_realtime(
                 env, log_root, "kundur_two_area" if args.quick else "ieee39", NETWORK_RATE_HZ,
-                5.0 if args.quick else 30.0, 1 if args.quick else LATENCY_ROUNDS,
-                args.composed != "no" and composed_available())
+                5.0 if args.quick else 30.0, 1 if args.quick else LATENCY_ROUNDS)
         except (ChildError, RuntimeError) as error:
             print(f"bench: network realtime: not completed: {error}", file=sys.stderr, flush=True)
             network_realtime = {"error": str(error).splitlines()[0][:300]}

@@ -26,6 +26,10 @@ work in between: ``echo`` publishes every message it receives straight back,
   each echo's own round trips and misses (a tick finding its previous ping
   unanswered) are kept too. Without ``--fanout``, one echo on the
   unnamespaced topics.
+* ``echo --composed N``: the N echoes of a fan-out as N nodes (``/gen1``
+  .. ``/genN``) of this one process on one executor, as
+  ``composed_controllers`` runs N controllers: the floor of the composed
+  deployment.
 
 ``ping`` prints one JSON line (round trips in ns, misses) and exits.
 Run with ``python -m bench.pingpong echo|ping ...`` from the repository root.
@@ -53,10 +57,10 @@ CHAINED_TIMEOUT_S = 1.0
 
 
 class Echo(Node):
-    """Publishes every ping back on the pong topic, unchanged."""
+    """Publishes every ping back on the pong topic, unchanged (in ``namespace``, or the one given by -r __ns)."""
 
-    def __init__(self):
-        super().__init__("pingpong_echo")
+    def __init__(self, namespace: str | None = None):
+        super().__init__("pingpong_echo", namespace=namespace)
         self._pub = self.create_publisher(JointState, PONG_TOPIC, contract.SAMPLE_QOS)
         self.create_subscription(JointState, PING_TOPIC, self._pub.publish, contract.SAMPLE_QOS)
 
@@ -190,10 +194,17 @@ def main(argv=None) -> int:
     parser.add_argument("--samples", type=int, default=1000, help="chained: round trips")
     parser.add_argument("--fanout", type=int, default=0,
                         help="ping: fan out to echoes in namespaces /gen1 .. /genN (default: one, unnamespaced)")
+    parser.add_argument("--composed", type=int, default=0, metavar="N",
+                        help="echo: N echo nodes in /gen1 .. /genN, all in this process on one executor")
     args, ros_args = parser.parse_known_args(argv)
-    if args.fanout < 0:
-        parser.error(f"--fanout takes a count >= 0, got {args.fanout}")
+    if args.fanout < 0 or args.composed < 0:
+        parser.error(f"--fanout and --composed take a count >= 0, got {args.fanout} and {args.composed}")
+    if args.composed and args.role != "echo":
+        parser.error("--composed applies to echo")
     if args.role == "echo":
+        if args.composed:
+            return run_node(lambda: [Echo(ns) for ns in fanout_namespaces(args.composed)], ros_args,
+                            prog="pingpong echo")
         return run_node(Echo, ros_args, prog="pingpong echo")
     return run_node(lambda: Ping(args.mode, args.rate, args.duration, args.samples, args.fanout), ros_args,
                     prog="pingpong ping")

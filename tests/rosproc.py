@@ -67,11 +67,13 @@ def busy_processes(count: int = 2):
 
 @contextmanager
 def node_processes(tmp_path: Path, domain_id: int):
-    """Start nodes with ``start(name, module, params)``; every one is stopped on exit."""
+    """Start nodes with ``start(name, module, params, ros_args, env)``; every one is stopped on exit."""
     started: list[NodeProcess] = []
 
-    def start(name: str, module: str, params: dict | None = None, ros_args: tuple = ()) -> NodeProcess:
-        proc = NodeProcess(node_command(module, params, ros_args), ros_env(domain_id), tmp_path / f"{name}.log")
+    def start(name: str, module: str, params: dict | None = None, ros_args: tuple = (),
+              env: dict | None = None) -> NodeProcess:
+        proc = NodeProcess(node_command(module, params, ros_args), ros_env(domain_id, **(env or {})),
+                           tmp_path / f"{name}.log")
         started.append(proc)
         return proc
 

@@ -17,6 +17,7 @@ import pytest
 import yaml
 
 from nni_battery_controller.controller_config import generator_parameters
+from nni_battery_controller.network_deployment import composed_parameters
 from nni_battery_controller.network_sim import NetworkLaw, simulate_network
 from nni_plant_sim.cases import load_network
 from nni_plant_sim.network_scenarios import BusFault
@@ -36,11 +37,11 @@ def kundur():
 
 
 def composed(tmp_path):
-    """``controllers`` for run_network: one composed_controllers process, a params file with a section per node."""
+    """``controllers`` for run_network: one composed_controllers process, a params file with a section per node
+    (the deployment's own, ``network_deployment.composed_parameters``)."""
     def start_them(start, parameters: dict) -> None:
         path = tmp_path / "controllers.yaml"
-        path.write_text(yaml.safe_dump({f"/{ns}/controller": {"ros__parameters": values}
-                                        for ns, values in parameters.items()}))
+        path.write_text(yaml.safe_dump(composed_parameters({f"/{ns}": values for ns, values in parameters.items()})))
         start("controllers", COMPOSED, {"namespaces": [f"/{ns}" for ns in parameters]}, ("--params-file", str(path)))
     return start_them
 

@@ -80,17 +80,33 @@ def marked_processes(marker: str) -> list[str]:
     return found
 
 
+def participants_env(pid: int) -> str | None:
+    """The NNI_DDS_PARTICIPANTS a process was started with (None: not set, or the process is gone)."""
+    try:
+        entries = (Path(f"/proc/{pid}") / "environ").read_bytes().split(b"\0")
+    except OSError:
+        return None
+    found = [entry.split(b"=", 1)[1].decode() for entry in entries if entry.startswith(b"NNI_DDS_PARTICIPANTS=")]
+    return found[0] if found else None
+
+
 def run_demo(args: list[str], domain: int, timeout: float = 600) -> tuple[subprocess.CompletedProcess, set, str]:
-    """Run nni-demo to the end; its result, every child process (pid, start time) seen while it ran, its marker."""
+    """Run nni-demo to the end; its result, every child process (pid, start time) seen while it ran, its marker.
+
+    The result's ``participants`` is the set of NNI_DDS_PARTICIPANTS values the children were started with."""
     env, marker = marked_env(domain)
     proc = subprocess.Popen([str(DEMO), *args, "--domain-id", str(domain)], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     seen: set = set()
+    counts: dict = {}
     done = threading.Event()
 
     def watch():
         while not done.is_set():
             seen.update(children_of(proc.pid))
+            for child in seen:  # read again until the child has exec'd (a fork shows the demo's own environment)
+                if counts.get(child) is None:
+                    counts[child] = participants_env(child[0])
             time.sleep(0.05)
 
     watcher = threading.Thread(target=watch, daemon=True)
@@ -100,7 +116,9 @@ def run_demo(args: list[str], domain: int, timeout: float = 600) -> tuple[subpro
     finally:
         done.set()
         watcher.join()
-    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err), seen, marker
+    result = subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+    result.participants = set(counts.values())
+    return result, seen, marker
 
 
 def assert_nothing_left(children: set, marker: str) -> None:
@@ -115,7 +133,25 @@ def table_rows(text: str, names) -> dict[str, str]:
     return {line.split()[0]: line.strip() for line in text.splitlines() if line.strip().split(" ")[0] in names}
 
 
-def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_and_leaves_nothing(tmp_path):
+#: The Kundur demo run of the tests below: 2 s lockstep, b = 0.1 with gen2 at 0 (--gen-b).
+KUNDUR_DEMO = ["--case", "kundur_two_area", "--b", "0.1", "--gen-b", "2=0", "--duration", "2"]
+
+
+def kundur_demo(out: Path, deployment: str):
+    """The Kundur demo run with ``--deployment``, two busy processes beside it; (result, children, marker)."""
+    with busy_processes(2):
+        return run_demo([*KUNDUR_DEMO, "--deployment", deployment, "--out", str(out)], fresh_domain_id())
+
+
+@pytest.fixture(scope="module")
+def separate_kundur_demo(tmp_path_factory):
+    """The Kundur demo with a controller process per generator (the default deployment, given explicitly)."""
+    out = tmp_path_factory.mktemp("separate")
+    return out, *kundur_demo(out, "separate")
+
+
+def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_and_leaves_nothing(
+        separate_kundur_demo):
     """2 s lockstep, b = 0.1 with gen2 at 0 (--gen-b), two busy processes beside it.
 
     The printed verdict and generator rows are the offline study's (format_run of
@@ -123,12 +159,10 @@ def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_an
     whose final sample the recording does not have: offline the controllers
     answer the run's final sample too; in the loop nobody answers it.
     """
-    domain = fresh_domain_id()
-    with busy_processes(2):
-        result, children, marker = run_demo(["--case", "kundur_two_area", "--b", "0.1", "--gen-b", "2=0", "--duration", "2",
-                                     "--out", str(tmp_path)], domain)
+    tmp_path, result, children, marker = separate_kundur_demo
     assert result.returncode == 0, result.stderr
     assert len(children) == 6, "logger, four controllers, plant"
+    assert result.participants == {"6"}, "each child is told how many processes the deployment has"
     assert_nothing_left(children, marker)
     net = load_network("kundur_two_area")
     limits = np.array([0.1, 0.0, 0.1, 0.1])
@@ -145,6 +179,7 @@ def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_an
 
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["case"] == "kundur_two_area" and summary["namespaces"] == ["gen1", "gen2", "gen3", "gen4"]
+    assert summary["deployment"] == "separate"
     (run,) = summary["runs"]
     assert run["b"] == 0.1 and run["gen_b"] == {"gen2": 0.0} and run["in_synchronism"] is True
     assert "compromised" not in run
@@ -169,6 +204,48 @@ def test_kundur_demo_prints_each_generator_as_offline_records_every_namespace_an
     assert meta["case"] == "kundur_two_area" and list(meta["controllers"]) == ["/gen1", "/gen2", "/gen3", "/gen4"]
     assert meta["controllers"]["/gen2"]["battery_limit_pu"] == 0.0
     assert (tmp_path / "figures.png").stat().st_size > 0
+
+
+def key_paths(value, prefix=()) -> set[tuple]:
+    """Every key path of a JSON value (dicts by key; a list's items by index), the values left out."""
+    if isinstance(value, dict):
+        return {prefix + (key,) for key in value} | {path for key, item in value.items()
+                                                     for path in key_paths(item, prefix + (key,))}
+    if isinstance(value, list):
+        return {path for index, item in enumerate(value) for path in key_paths(item, prefix + (index,))}
+    return set()
+
+
+def test_the_composed_deployment_gives_the_separate_processes_rows_and_trajectory_bit_for_bit(
+        tmp_path, separate_kundur_demo):
+    """--deployment composed: one composed_controllers process beside the logger and the plant; the same
+    verdict table, the same summary.json keys and, at every sample of every generator, the same floats
+    in the recording as a controller process per generator; nothing left running."""
+    separate_out, separate, _, _ = separate_kundur_demo
+    result, children, marker = kundur_demo(tmp_path, "composed")
+    assert result.returncode == 0, result.stderr
+    assert len(children) == 3, "logger, one composed_controllers process, plant"
+    assert result.participants == {"3"}
+    assert_nothing_left(children, marker)
+    assert "their controllers composed in one process" in result.stdout.splitlines()[0], result.stdout
+    names = load_network("kundur_two_area").names
+    verdict = [line for line in separate.stdout.splitlines() if "b = 0.1 pu, reference pmu:" in line]
+    assert len(verdict) == 1 and verdict[0] in result.stdout.splitlines()
+    assert table_rows(result.stdout, names) == table_rows(separate.stdout, names)
+    summaries = [json.loads((out / "summary.json").read_text()) for out in (separate_out, tmp_path)]
+    assert key_paths(summaries[0]) == key_paths(summaries[1])
+    assert summaries[1]["deployment"] == summaries[1]["runs"][0]["deployment"] == "composed"
+    recorded = [generator_runs(read_recording(summary["runs"][0]["recording"])) for summary in summaries]
+    assert list(recorded[1]) == ["/gen1", "/gen2", "/gen3", "/gen4"]
+    for ns, reference in recorded[0].items():
+        got = recorded[1][ns]
+        for field in ("stamp_ns", "delta_rad", "speed_rad_s", "battery_power_pu"):
+            assert np.array_equal(getattr(got, field), getattr(reference, field)), (ns, field)
+        assert set(got.signals) == set(reference.signals)
+        for name, values in reference.signals.items():  # the controller's state; NaN where it did not report
+            assert np.array_equal(got.signals[name], values, equal_nan=True), (ns, name)
+    assert sorted(p.name for p in (tmp_path / "logs").glob("*/*.log")) == [
+        "composed_controllers.log", "mcap_logger.log", "network_plant.log"]
 
 
 def test_coi_reference_and_a_displacement_run_as_offline_and_stream_every_generator_to_rerun(tmp_path):
@@ -212,6 +289,7 @@ def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
                                          "--out", str(tmp_path)], domain)
     assert result.returncode == 0, result.stderr
     assert len(children) == 12, "logger, ten controllers, plant"
+    assert result.participants == {"12"}
     assert_nothing_left(children, marker)
     net = load_network("ieee39")
     rows = table_rows(result.stdout, net.names)
@@ -229,6 +307,24 @@ def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
         f"controller_gen{i}.log" for i in range(1, 11))
 
 
+def test_the_52_generator_ring_runs_through_the_demo_composed_on_this_machine(tmp_path):
+    """kundur_ring_52 with its 52 controllers composed in one process (1 s lockstep, about 17 s here):
+    every generator's row and loop row printed, every sample answered, nothing left running."""
+    result, children, marker = run_demo(["--case", "kundur_ring_52", "--deployment", "composed", "--b", "0.1",
+                                         "--duration", "1", "--out", str(tmp_path)], fresh_domain_id())
+    assert result.returncode == 0, result.stderr
+    assert len(children) == 3, "logger, composed_controllers, plant"
+    assert_nothing_left(children, marker)
+    net = load_network("kundur_ring_52")
+    assert net.size == 52 and set(table_rows(result.stdout, net.names)) == set(net.names), result.stdout
+    (run,) = json.loads((tmp_path / "summary.json").read_text())["runs"]
+    assert list(run["generators"]) == [f"gen{i}" for i in range(1, 53)]
+    short = {ns: (g["samples"], g["dropped_samples"], g["logger_counts"]) for ns, g in run["generators"].items()
+             if g["samples"] != 50 or g["dropped_samples"] or g["logger_counts"][f"/{ns}/plant/state"] != 51}
+    assert short == {}, short
+    assert run["in_synchronism"] is True and "compromised" not in run
+
+
 @pytest.mark.parametrize("args, message", [
     (["--case", "kundur_two_area", "--H", "4"], "--H does not apply to --case: the machines"),
     (["--case", "ieee39", "--scenario", "angle_displacement", "--displace", "0.3"],
@@ -240,6 +336,7 @@ def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
     (["--case", "kundur_two_area", "--gen-b", "5=0.1"], "--gen-b 5=0.1: no generator 5 (the case has gen1 .. gen4)"),
     (["--case", "kundur_two_area", "--K", "1", "1", "1", "2"], "generator G4@4: K must be less than L"),
     (["--gen-b", "2=0.1"], "--gen-b applies to a network of generators only"),
+    (["--deployment", "composed"], "--deployment applies to a network of generators only"),
     (["--case", "kundur_two_area", "--clearing-time", "2000"], "network plant parameter clearing_time = 2000 is outside"),
     (["--case", "kundur_two_area", "--tau", "1e-5"], "controller parameter tau_s = 1e-05 is outside 0.0001..100"),
 ])
@@ -308,29 +405,73 @@ def test_the_launch_file_creates_one_controller_per_generator_of_the_case(networ
     plant = nodes[-1]["parameters"]
     assert plant["case"] == case and plant["duration_s"] == 3.0 and plant["wait_for_subscribers"] == 2
     assert plant["fault_bus"] == {"kundur_two_area": 7, "ieee39": 16}[case]
+    assert all(node["env"] == {"NNI_DDS_PARTICIPANTS": str(net.size + 2)} for node in nodes), "logger, plant, N"
     for node in nodes:
         module = importlib.import_module(console_script_module(node["executable"]))
         declared = {spec.name for spec in module.parameters()}
         assert set(node["parameters"]) <= declared, (node["executable"], set(node["parameters"]) - declared)
 
 
+#: Each network scenario as launch arguments and as the nni-demo --case options that say the same.
+LAUNCH_SCENARIOS = [
+    ({"fault_bus": "8", "fault_x": "0.01", "clearing_time": "0.15", "trip_line": "7 8"},
+     ["--fault-bus", "8", "--fault-x", "0.01", "--clearing-time", "0.15", "--trip-line", "7", "8"]),
+    ({"scenario": "line_trip", "trip_line": "7 8"}, ["--scenario", "line_trip", "--trip-line", "7", "8"]),
+    ({"scenario": "mechanical_step", "machine": "2", "step_p_mech": "0.95", "step_duration": "0.2"},
+     ["--scenario", "mechanical_step", "--machine", "2", "--step-p-mech", "0.95", "--step-duration", "0.2"]),
+    ({"scenario": "angle_displacement", "machine": "1 3", "displace": "0.3"},
+     ["--scenario", "angle_displacement", "--machine", "1", "3", "--displace", "0.3"]),
+]
+
+
+@pytest.mark.parametrize("launch_args, demo_options", LAUNCH_SCENARIOS)
+def test_every_network_scenario_is_launchable_with_the_plant_parameters_nni_demo_gives(network_launch, launch_args,
+                                                                                      demo_options):
+    """The launch arguments of each scenario (generated from the network plant node's table) give the plant
+    the scenario parameters ``nni-demo --case`` gives it for the same disturbance, and nothing of the others."""
+    from nni_battery_controller.network_demo import parse_arguments
+
+    plant = network_launch.network_nodes(launch_args)[-1]["parameters"]
+    demo = parse_arguments(["--case", "kundur_two_area", *demo_options]).scenario_values
+    launched = {key: value for key, value in plant.items() if key in network_launch.SCENARIO_ARGUMENTS}
+    assert set(launched) - {"trip_line"} == set(demo) - {"trip_line"}, (launched, demo)
+    assert launched.get("trip_line", "") == demo.get("trip_line", "")
+    for key, value in demo.items():
+        assert launched[key] == (pytest.approx(value, rel=1e-15) if isinstance(value, float) else value), key
+
+
 def test_the_launch_file_refuses_what_cannot_work(network_launch):
     for given, message in (({"fault_bus": "99"}, "bus 99 is not in the case"),
-                           ({"scenario": "mechanical_step"}, "scenario must be one of bus_fault, line_trip"),
+                           ({"scenario": "mechanical_step"}, "scenario mechanical_step needs machine"),
+                           ({"scenario": "bus_fault", "displace": "0.5"},
+                            "not for scenario bus_fault: displace \\(angle_displacement only\\)"),
+                           ({"scenario": "mechanical_step", "machine": "1 2"}, "mechanical_step needs one machine"),
+                           ({"scenario": "angle_displacement", "machine": "9"}, "machine 9: no generator at that bus"),
+                           ({"scenario": "angle_displacement", "machine": "one"}, "machine takes bus numbers"),
+                           ({"clearing_time": "soon"}, "clearing_time takes a number, got 'soon'"),
+                           ({"scenario": "islanding"}, "scenario must be one of bus_fault, line_trip, "
+                                                       "mechanical_step, angle_displacement"),
                            ({"gen_b": "7=0.1"}, "gen_b 7=0.1: no generator 7"),
                            ({"gain_k": "2.0"}, "K must be less than L")):
         with pytest.raises(Exception, match=message):
             network_launch.network_nodes(given)
 
 
-def test_the_launch_files_nodes_run_the_network_and_record_every_generator(network_launch, tmp_path):
-    """The node list, started as the processes ros2 launch would start: a 1 s lockstep Kundur run, one MCAP."""
+@pytest.mark.parametrize("launch_args, scenario", [
+    ({}, lambda net: BusFault(net, 7, 0.1)),
+    ({"scenario": "angle_displacement", "machine": "1", "displace": "0.3"},
+     lambda net: AngleDisplacement(np.array([0.3, 0.0, 0.0, 0.0]))),
+], ids=["bus_fault", "angle_displacement"])
+def test_the_launch_files_nodes_run_the_network_and_record_every_generator(network_launch, tmp_path, launch_args,
+                                                                           scenario):
+    """The node list, started as the processes ros2 launch would start (their environment too): a 1 s lockstep
+    Kundur run, one MCAP, every generator's angles the offline sampled simulation's of the scenario to 1e-12."""
     domain, path = fresh_domain_id(), tmp_path / "network.mcap"
-    nodes = network_launch.network_nodes({"duration_s": "1.0", "output_path": str(path)})
+    nodes = network_launch.network_nodes({"duration_s": "1.0", "output_path": str(path), **launch_args})
     with node_processes(tmp_path, domain) as start:
         started = [start(f"{n['executable']}_{n['namespace'] or 'root'}", console_script_module(n["executable"]),
                          {**n["parameters"], **({"discovery_period_s": 0.1} if n["name"] == "mcap_logger" else {})},
-                         ("-r", f"__ns:=/{n['namespace']}") if n["namespace"] else ())
+                         ("-r", f"__ns:=/{n['namespace']}") if n["namespace"] else (), n["env"])
                    for n in nodes]
         plant, logger = started[-1], started[0]
         assert plant.wait(timeout=180.0) == 0, plant.output()
@@ -339,21 +480,27 @@ def test_the_launch_files_nodes_run_the_network_and_record_every_generator(netwo
     runs = generator_runs(read_recording(path))
     assert list(runs) == ["/gen1", "/gen2", "/gen3", "/gen4"]
     assert all(run.stamp_ns.size == 51 for run in runs.values()), "1 s at 50 frames/s: t_0 .. t_50"
+    net = load_network("kundur_two_area")
+    offline = simulate_network(net, default_law(net), scenario(net), [np.full(4, 0.1)], 1.0, 50.0)
+    for i, run in enumerate(runs.values()):
+        np.testing.assert_allclose(run.delta_rad, offline.delta_rad[:, i, 0], rtol=0, atol=1e-12)
 
 
-def test_a_killed_network_demo_takes_every_process_with_it(tmp_path):
-    """SIGKILL mid-run (realtime, 60 s): the plant, the four controllers and the logger end with it."""
+@pytest.mark.parametrize("deployment, processes", [("separate", 6), ("composed", 3)])
+def test_a_killed_network_demo_takes_every_process_with_it(tmp_path, deployment, processes):
+    """SIGKILL mid-run (realtime, 60 s): the plant, the controllers (four processes, or the one composed) and
+    the logger end with it."""
     domain = fresh_domain_id()
     env, marker = marked_env(domain)
     demo = subprocess.Popen([str(DEMO), "--case", "kundur_two_area", "--mode", "realtime", "--b", "0.1",
-                             "--duration", "60", "--out", str(tmp_path), "--domain-id", str(domain)],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                             "--duration", "60", "--deployment", deployment, "--out", str(tmp_path),
+                             "--domain-id", str(domain)], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     children: set = set()
     deadline = time.monotonic() + 120
-    while len(children) < 6 and time.monotonic() < deadline:
+    while len(children) < processes and time.monotonic() < deadline:
         children |= children_of(demo.pid)
         time.sleep(0.2)
-    assert len(children) == 6, "logger, four controllers and the plant should be running"
+    assert len(children) == processes, "the logger, the controllers and the plant should be running"
     demo.kill()
     demo.wait(timeout=60)
     deadline = time.monotonic() + 30

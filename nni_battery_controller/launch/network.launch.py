@@ -2,6 +2,8 @@
 
     ros2 launch nni_battery_controller network.launch.py case:=ieee39 mode:=lockstep duration_s:=10.0 \
         battery_limit_pu:=0.1 gen_b:='3=0.2 10=inf' fault_bus:=16 clearing_time:=0.1 output_path:=ieee39.mcap
+    ros2 launch nni_battery_controller network.launch.py scenario:=mechanical_step machine:=2 step_p_mech:=0.95 \
+        step_duration:=0.2
 
 The controllers are not listed here: the case is read when the launch runs
 (an OpaqueFunction), and it starts one controller node per generator, in
@@ -10,11 +12,16 @@ publishes its PMU), each with g measured from its PMU and its angle from its
 pre-fault value (:mod:`nni_battery_controller.network_deployment`, the same
 parameters ``nni-demo --case`` gives). ``battery_limit_pu`` is every
 generator's b, ``gen_b`` ('I=B ...') overrides it per generator; the gains are
-the same at every generator. The disturbance arguments are the network plant
-node's parameters, checked as ``nni-simulate --case`` checks its options
-(``fault_bus`` empty: the case's default bus, 7 Kundur, 16 IEEE 39). Each node
-reads its defaults from its package's config YAML; the launch passes only what
-it sets. The launch shuts down when the plant exits: the controllers and the
+the same at every generator. The disturbance arguments (every scenario of the
+network plant: ``bus_fault``, ``line_trip``, ``mechanical_step``,
+``angle_displacement``) are generated from the network plant node's parameter
+table, with its names, defaults and descriptions, and checked as the node
+checks them (``network_plant_config.scenario_from``: an argument of another
+scenario is refused, not ignored; ``fault_bus`` empty: the case's default bus,
+7 Kundur and the ring, 16 IEEE 39). Each node reads its defaults from its
+package's config YAML; the launch passes only what it sets. Every process is
+told how many the launch starts (``NNI_DDS_PARTICIPANTS``), so that the 54 of
+``kundur_ring_52`` discover each other. The launch shuts down when the plant exits: the controllers and the
 logger get SIGINT, and the logger finishes the recording.
 
 ``launch`` is imported inside :func:`generate_launch_description` only, so
@@ -22,38 +29,33 @@ that :func:`network_nodes` (the nodes a launch would create, as plain dicts)
 can be imported and checked where ``launch`` is not installed.
 """
 
-from types import SimpleNamespace
+import math
 
 import yaml
 
-from nni_battery_controller.network_cli import make_scenario
 from nni_battery_controller.network_deployment import (
     battery_limits,
     controller_parameters,
+    default_fault_bus,
     generator_limits,
     namespaces,
+    participants,
     plant_parameters,
-    scenario_parameters,
 )
 from nni_battery_controller.network_sim import NetworkLaw
 from nni_msgs_adapter.ros.defaults import controller_defaults
-from nni_plant_sim.cases import load_network
+from nni_msgs_adapter.ros.processes import PARTICIPANTS_ENV
+from nni_plant_sim.cases import CASES, load_network
+from nni_plant_sim.network_plant_config import parameters as plant_node_parameters, scenario_from
+from nni_plant_sim.network_scenarios import SCENARIO_PARAMETERS
 
-#: The scenarios this launch file takes arguments for (``nni-demo --case`` also runs mechanical_step and
-#: angle_displacement; here they are refused, not ignored).
-SCENARIOS = ("bus_fault", "line_trip")
-#: Launch arguments: name -> (default, description). Numbers are read as ROS reads parameter text (YAML).
-ARGUMENTS = {
-    "case": ("kundur_two_area", "shipped test system (kundur_two_area, ieee39)"),
+#: Launch arguments other than the disturbance's: name -> (default, description). Numbers are read as ROS reads
+#: parameter text (YAML). The disturbance's come from the network plant node's table (:func:`arguments`).
+RUN_ARGUMENTS = {
+    "case": ("kundur_two_area", f"shipped test system ({', '.join(CASES)})"),
     "mode": ("lockstep", "lockstep (simulated /clock) or realtime"),
     "duration_s": ("10.0", "simulated seconds to run, then shut down"),
     "pmu_rate_hz": ("50.0", "PMU reporting rate, frames/s (and the controllers' sampling rate)"),
-    "scenario": ("bus_fault", "bus_fault or line_trip"),
-    "fault_bus": ("", "bus_fault: the faulted bus (empty: 7 Kundur, 16 IEEE 39)"),
-    "fault_r": ("0.0", "bus_fault: fault resistance, pu system base"),
-    "fault_x": ("0.0", "bus_fault: fault reactance, pu system base"),
-    "clearing_time": ("0.1", "bus_fault: clearing time, s"),
-    "trip_line": ("", "branch that opens, 'FROM TO [CIRCUIT]' (empty: none; line_trip needs one)"),
     "battery_limit_pu": ("0.1", "every generator's battery limit b, pu of its rating (.inf: unlimited)"),
     "gen_b": ("", "per-generator limits instead, 'I=B ...' (I: 1.. as in /gen<I>)"),
     "tau_s": (None, "tau, s, at every generator"),
@@ -62,54 +64,113 @@ ARGUMENTS = {
     "alpha": (None, "alpha at every generator"),
     "output_path": ("network.mcap", "the MCAP recording of every namespace"),
 }
+#: The network plant node's disturbance parameters, the launch arguments of the same names.
+SCENARIO_ARGUMENTS = ("scenario", *SCENARIO_PARAMETERS)
 #: (package, executable) of each node.
 PLANT = ("nni_plant_sim", "network_plant_node")
 CONTROLLER = ("nni_battery_controller", "controller_node")
 LOGGER = ("nni_msgs_adapter", "mcap_logger")
 
 
-def argument_defaults() -> dict:
-    """Every argument's default as launch text; the gains' from the controller's config YAML."""
+def _text(value) -> str:
+    """A parameter default as launch text: ``.inf``, words for an array, YAML for the rest."""
+    if isinstance(value, float) and math.isinf(value):
+        return ".inf" if value > 0 else "-.inf"
+    if isinstance(value, (list, tuple)):
+        return " ".join(map(str, value))
+    return str(value)
+
+
+def arguments() -> dict:
+    """Every launch argument: name -> (default as launch text, description).
+
+    The disturbance's are the network plant node's parameter table (name, default, description; which
+    scenario each belongs to from ``SCENARIO_PARAMETERS``); ``fault_bus`` empty is the case's default bus.
+    The gains' defaults are the controller's config YAML.
+    """
     gains = controller_defaults()
-    return {name: str(gains[name]) if default is None else default for name, (default, _) in ARGUMENTS.items()}
+    table = {name: (str(gains[name]) if default is None else default, text)
+             for name, (default, text) in RUN_ARGUMENTS.items()}
+    specs = {spec.name: spec for spec in plant_node_parameters()}
+    for name in SCENARIO_ARGUMENTS:
+        spec = specs[name]
+        text = spec.description.rstrip(".")
+        if spec.choices:
+            text += f" ({' | '.join(spec.choices)})"
+        if spec.array_of is not None:
+            text += "; space-separated"
+        table[name] = (_text(spec.default), text)
+    bus = table["fault_bus"][1]
+    table["fault_bus"] = ("", f"{bus} (empty: 7 Kundur and the ring, 16 IEEE 39)")
+    return table
+
+
+def argument_defaults() -> dict:
+    """Every argument's default as launch text."""
+    return {name: default for name, (default, _) in arguments().items()}
 
 
 def _value(text: str):
     return yaml.safe_load(text)
 
 
+def _scenario_value(spec, text: str):
+    """A disturbance argument's text as its plant parameter's type; ValueError naming the argument."""
+    try:
+        if spec.array_of is not None:
+            return [spec.array_of(word) for word in text.split()]
+        if isinstance(spec.default, str):
+            return text
+        value = _value(text)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError
+        return type(spec.default)(value)
+    except (ValueError, TypeError, yaml.YAMLError):
+        kind = "bus numbers 'BUS ...'" if spec.array_of is not None else "a number"
+        raise ValueError(f"{spec.name} takes {kind}, got {text!r}") from None
+
+
+def scenario_values(net, case: str, values: dict) -> dict:
+    """The network plant node's disturbance parameters for these launch argument texts, checked by the plant's own
+    check (``network_plant_config.scenario_from``): an argument of another scenario given (not at its default)
+    is refused, and so is a bus, branch or machine not in the case. Returns the scenario and its own values."""
+    specs = {spec.name: spec for spec in plant_node_parameters()}
+    given = {name: _scenario_value(specs[name], values[name]) for name in SCENARIO_ARGUMENTS
+             if name != "fault_bus" or values[name]}
+    if given["scenario"] == "bus_fault":
+        given.setdefault("fault_bus", default_fault_bus(case))
+    merged = {**{name: specs[name].default for name in SCENARIO_ARGUMENTS}, **given}
+    scenario_from(net, merged)
+    return {"scenario": merged["scenario"], **{name: merged[name] for name, scenarios in SCENARIO_PARAMETERS.items()
+                                                if merged["scenario"] in scenarios}}
+
+
 def network_nodes(given: dict) -> list[dict]:
     """The nodes a launch with these argument texts creates: ``package``, ``executable``, ``name``,
-    ``namespace``, ``parameters`` (one dict); the logger first, then the controllers, the plant last.
+    ``namespace``, ``parameters`` (one dict), ``env`` (what the process gets beside the launch's environment);
+    the logger first, then the controllers, the plant last.
 
-    ValueError (or CliError) naming a bad argument: an unknown case, a bus or branch not in it,
-    K >= L, a bad ``gen_b`` word.
+    ValueError (or CliError) naming a bad argument: an unknown case, a bus, branch or machine not in it, an
+    argument of another scenario, K >= L, a bad ``gen_b`` word.
     """
     values = {**argument_defaults(), **given}
     case = values["case"]
-    if values["scenario"] not in SCENARIOS:
-        raise ValueError(f"scenario must be one of {', '.join(SCENARIOS)} (the launch file's arguments), "
-                         f"got {values['scenario']!r}")
     net = load_network(case)
-    trip = [int(word) for word in values["trip_line"].split()]
-    options = SimpleNamespace(case=case, scenario=values["scenario"],
-                              fault_bus=_value(values["fault_bus"]) if values["fault_bus"] else None,
-                              fault_r=_value(values["fault_r"]), fault_x=_value(values["fault_x"]),
-                              clearing_time=_value(values["clearing_time"]), trip_line=trip or None)
-    scenario, _, _ = make_scenario(net, options)
+    scenario = scenario_values(net, case, values)
     rate = float(_value(values["pmu_rate_hz"]))
     law = NetworkLaw.uniform(net, *(float(_value(values[name])) for name in ("tau_s", "gain_k", "gain_l", "alpha")))
     limits = battery_limits(net.size, float(_value(values["battery_limit_pu"])),
                             generator_limits(values["gen_b"].split(), net.size, "gen_b"))
-    plant = plant_parameters(case, scenario_parameters(net, scenario, trip), values["mode"], rate,
-                             float(_value(values["duration_s"])))
+    plant = plant_parameters(case, scenario, values["mode"], rate, float(_value(values["duration_s"])))
     nodes = [{"package": LOGGER[0], "executable": LOGGER[1], "name": "mcap_logger", "namespace": "",
               "parameters": {"output_path": values["output_path"]}}]
     nodes += [{"package": CONTROLLER[0], "executable": CONTROLLER[1], "name": "controller", "namespace": ns,
                "parameters": controller_parameters(net, i, limits[i], rate, law)} for i, ns in enumerate(namespaces(net))]
     nodes.append({"package": PLANT[0], "executable": PLANT[1], "name": "network_plant", "namespace": "",
                   "parameters": plant})
-    return nodes
+    # Every process learns how many there are: beyond 32 (the ring's 54) their discovery is widened to cover them.
+    env = {PARTICIPANTS_ENV: str(participants(net, "separate", 2))}
+    return [{**node, "env": env} for node in nodes]
 
 
 def generate_launch_description():
@@ -120,16 +181,17 @@ def generate_launch_description():
     from launch_ros.actions import Node
 
     def setup(context):
-        specs = network_nodes({name: context.launch_configurations[name] for name in ARGUMENTS})
+        specs = network_nodes({name: context.launch_configurations[name] for name in table})
         nodes = [Node(package=spec["package"], executable=spec["executable"], name=spec["name"],
-                      namespace=spec["namespace"], parameters=[spec["parameters"]]) for spec in specs]
+                      namespace=spec["namespace"], parameters=[spec["parameters"]], additional_env=spec["env"])
+                 for spec in specs]
         # The run is over when the plant (the last node) exits: stop the others, finish the recording.
         return [*nodes, RegisterEventHandler(OnProcessExit(target_action=nodes[-1], on_exit=[
             EmitEvent(event=Shutdown(reason="the network plant finished its run"))]))]
 
-    defaults = argument_defaults()
+    table = arguments()
     return LaunchDescription([
-        *(DeclareLaunchArgument(name, default_value=defaults[name], description=text)
-          for name, (_, text) in ARGUMENTS.items()),
+        *(DeclareLaunchArgument(name, default_value=default, description=text)
+          for name, (default, text) in table.items()),
         OpaqueFunction(function=setup),
     ])

@@ -92,7 +92,7 @@ def build_parser() -> OneLineParser:
 
 
 #: Options of ``nni-demo --case`` only: given to the SMIB demo, they are refused.
-NETWORK_ONLY_OPTIONS = ("--gen-b", "--fault-bus", "--fault-r", "--fault-x", "--trip-line")
+NETWORK_ONLY_OPTIONS = ("--gen-b", "--fault-bus", "--fault-r", "--fault-x", "--trip-line", "--deployment")
 
 
 def given_options(argv) -> list[str]:
@@ -286,11 +286,12 @@ def finish_plant(procs, plant, args, label: str, prefix: str = SUMMARY_PREFIX) -
     time.sleep(DRAIN_S)
 
 
-def check_complete(recording: Path, recorded: int, sent: int, logs: Path, where: str = "") -> None:
-    """CliError unless the logger recorded every measurement the plant sent (``where``: to which namespace)."""
+def check_complete(recording: Path, recorded: int, sent: int, logs: Path, where: str = "",
+                   what: str = "measurements the plant sent") -> None:
+    """CliError unless the logger recorded every one of ``what`` (``where``: to or from which namespace)."""
     if recorded < sent:
         raise CliError(f"the recording {recording} is partial: the logger recorded {recorded} of the {sent} "
-                       f"measurements the plant sent{where} (logs in {logs})")
+                       f"{what}{where} (logs in {logs})")
 
 
 def run_time_limit_s(args) -> float:

@@ -50,15 +50,17 @@ from nni_plant_sim.network_scenarios import (
     MechanicalStep,
 )
 
-#: Fault bus when --fault-bus is not given: a load bus of each shipped case.
-DEFAULT_FAULT_BUS = {"kundur_two_area": 7, "ieee39": 16}
+#: Fault bus when --fault-bus is not given: a load bus of each shipped case (kundur_ring_52: copy 0's bus 7, as the
+#: network plant node's default).
+DEFAULT_FAULT_BUS = {"kundur_two_area": 7, "ieee39": 16, "kundur_ring_52": 7}
 DEFAULT_LIMITS = (0.0, 0.1, 0.3, math.inf)
 
 
 def add_scenario_options(group) -> None:
     """The disturbance options of a network (``nni-simulate --case`` and ``nni-demo --case``)."""
     group.add_argument("--scenario", choices=NETWORK_SCENARIOS, default="bus_fault")
-    group.add_argument("--fault-bus", type=int, help="bus of the three-phase fault (default: 7 Kundur, 16 IEEE 39)")
+    group.add_argument("--fault-bus", type=int,
+                       help="bus of the three-phase fault (default: 7 Kundur and kundur_ring_52, 16 IEEE 39)")
     group.add_argument("--fault-r", type=float_within(0.0, 1e6, "pu"), help="fault resistance, pu system base (0)")
     group.add_argument("--fault-x", type=finite_float, help="fault reactance, pu system base (0: bolted)")
     group.add_argument("--clearing-time", type=positive_float, help="fault duration, s (default 0.1)")

@@ -1,9 +1,10 @@
-"""``nni-demo --case CASE``: a network of generators over ROS 2, one battery controller process per generator.
+"""``nni-demo --case CASE``: a network of generators over ROS 2, one battery controller per generator.
 
 For each battery limit b it starts the MCAP logger, one controller node per
 generator of the case (namespace ``/gen<i>``, g measured, b at every generator
-unless ``--gen-b`` says otherwise) and the network plant node, with
-localhost-only discovery on one ROS domain; lets the plant run its disturbance
+unless ``--gen-b`` says otherwise; ``--deployment separate``, the default: a
+process each; ``composed``: all in one process on one executor) and the
+network plant node, with localhost-only discovery on one ROS domain; lets the plant run its disturbance
 to the end, stops the others and reads the one recording (every namespace)
 back. Each run is judged with the offline network study's assessment
 (``network_sim.assess_network``) on the recorded trajectory and printed as
@@ -54,16 +55,20 @@ from nni_battery_controller.network_cli import (
     plot_network,
 )
 from nni_battery_controller.network_deployment import (
+    DEPLOYMENTS,
     battery_limits,
     controller_parameters,
     default_law,
     generator_limits,
     namespaces,
+    participants,
     plant_parameters,
     pmu_readers,
     scenario_parameters,
+    start_controllers,
 )
 from nni_battery_controller.network_sim import ANGLE_REFERENCES, NetworkLaw, assess_network
+from nni_msgs_adapter.recording.mcap_logger import SUBSCRIBED_PREFIX
 from nni_msgs_adapter.recording.runs import network_trajectory, read_generator_runs
 from nni_msgs_adapter.ros.cli_support import (
     CliError,
@@ -74,14 +79,17 @@ from nni_msgs_adapter.ros.cli_support import (
     positive_float,
     run_cli,
 )
-from nni_msgs_adapter.ros.processes import ChildError, Supervisor
+from nni_msgs_adapter.ros.processes import ChildError, Supervisor, with_participants
 from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX
 from nni_plant_sim.cases import CASES, load_network
 from nni_plant_sim.network_plant_node import SUMMARY_PREFIX, parameters as plant_node_parameters
 
 PROG = "nni-demo"
 PLANT = "nni_plant_sim.network_plant_node"
-CONTROLLER = "nni_battery_controller.controller_node"
+#: Longest wait, s, for the logger to subscribe to every controller's topics before the plant starts.
+RECORDER_WAIT_S = 120.0
+#: Each controller's topics the logger must record from the first sample on (the plant's it waits for itself).
+CONTROLLER_TOPICS = ("battery/command", "controller/state")
 #: (option dest, NetworkLaw field) of each gain.
 GAINS = (("tau", "tau_s"), ("gain_k", "gain_k"), ("gain_l", "gain_l"), ("alpha", "alpha"))
 #: The plant's counters shown per generator: the trust counters (any non-zero one compromises a run) and
@@ -119,6 +127,9 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
     add_rerun_option(parser)
+    parser.add_argument("--deployment", choices=DEPLOYMENTS, default="separate",
+                        help="separate: one controller process per generator (default); composed: all the case's "
+                             "controllers as nodes of one composed_controllers process, on one executor")
     parser.add_argument("--reference", choices=ANGLE_REFERENCES, default="pmu",
                         help="the controllers' angle reference: pmu (own angle vs nominal frequency; default) or coi "
                              "(relative to the centre of inertia: each controller reads every generator's PMU)")
@@ -198,7 +209,8 @@ def run_metadata(args, plant: dict, controllers: dict) -> dict:
     """The recording's ``nni_run`` record: the case, the scenario, every node's parameters, mode, rate, version."""
     values = {key: value for key, value in args.scenario_values.items() if key != "scenario"}
     return {"case": args.case, "scenario": {"name": args.scenario, **values}, "network_plant": plant,
-            "controllers": controllers, "mode": args.mode, "rate_hz": args.rate, "software_version": software_version()}
+            "controllers": controllers, "deployment": args.deployment, "mode": args.mode, "rate_hz": args.rate,
+            "software_version": software_version()}
 
 
 def generator_result(outcome_json: dict, loop: dict, counts: dict, namespace: str) -> dict:
@@ -237,6 +249,27 @@ def wait_for_bridge(bridge, index: int, runs: dict, logs: Path) -> None:
                        f"{BRIDGE_WAIT_S:g} s (logs in {logs})") from None
 
 
+def wait_for_recorder(logger, spaces, logs: Path) -> None:
+    """Wait until the logger has subscribed to every controller's topics (else CliError naming those it has not).
+
+    The plant waits for the logger and the controllers on each ``pmu``, not for the logger to have
+    found the controllers' writers: with the composed deployment's one participant of many endpoints,
+    under load, the logger once found /gen3's and /gen4's only after 70 samples (recording 27 of 100
+    commands), so the plant starts only once these subscriptions exist.
+    """
+    wanted = {f"/{ns}/{topic}" for ns in spaces for topic in CONTROLLER_TOPICS}
+    deadline = time.monotonic() + RECORDER_WAIT_S
+    while True:
+        missing = wanted - {line.split(SUBSCRIBED_PREFIX, 1)[1].strip() for line in logger.output().splitlines()
+                            if SUBSCRIBED_PREFIX in line}
+        if not missing:
+            return
+        if logger.poll() is not None or time.monotonic() > deadline:
+            raise CliError(f"the logger did not subscribe to {len(missing)} controller topic(s) within "
+                           f"{RECORDER_WAIT_S:g} s ({', '.join(sorted(missing)[:3])} ...; logs in {logs})")
+        time.sleep(0.05)
+
+
 def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
     """One run: logger, a controller per generator, the network plant; returns (summary entry, trajectory).
 
@@ -254,8 +287,8 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
         logger = procs.start_node("mcap_logger", "nni_msgs_adapter.recording.mcap_logger", {
             "output_path": str(recording), "discovery_period_s": 0.1,
             "run_metadata": json.dumps(run_metadata(args, plant_params, controllers))})
-        started_controllers = [procs.start_node(f"controller_{ns}", CONTROLLER, controllers[f"/{ns}"],
-                                                ("-r", f"__ns:=/{ns}")) for ns in spaces]
+        started_controllers = start_controllers(procs, controllers, args.deployment)
+        wait_for_recorder(logger, spaces, logs)
         plant = procs.start_node("network_plant", PLANT, plant_params)
         finish_plant(procs, plant, args, run_label(args, b), SUMMARY_PREFIX)
         for controller in started_controllers:
@@ -267,6 +300,8 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
     loops = plant_summary(plant.output(), SUMMARY_PREFIX)
     for ns in spaces:
         check_complete(recording, counts.get(f"/{ns}/pmu", 0), int(loops[ns]["measurements"]), logs, f" to /{ns}")
+        check_complete(recording, counts.get(f"/{ns}/battery/command", 0), int(loops[ns]["commands"]), logs,
+                       f" from /{ns}'s controller", "battery commands the plant received")
     runs = read_generator_runs(recording)
     if bridge is not None:
         wait_for_bridge(bridge, index, runs, logs)
@@ -275,7 +310,8 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
     outcome_json = outcome.to_json()
     result = {"b": json_b(b), "gen_b": {f"gen{i + 1}": json_b(v) for i, v in sorted(args.gen_limits.items())},
               "reference": args.reference, **{k: v for k, v in outcome_json.items() if k != "generators"},
-              "mode": args.mode, "rate_hz": args.rate, "recording": str(recording), "wall_time_s": round(wall_s, 3),
+              "deployment": args.deployment, "mode": args.mode, "rate_hz": args.rate, "recording": str(recording),
+              "wall_time_s": round(wall_s, 3),
               "generators": {ns: generator_result(g, loops[ns], counts, ns)
                              for ns, g in zip(spaces, outcome_json["generators"])}}
     compromised = {ns: reasons for i, ns in enumerate(spaces)
@@ -337,8 +373,12 @@ def main(argv=None) -> int:
         args = parse_arguments(argv)
         env, domain = run_environment(args)
         net, spaces = args.net, namespaces(args.net)
-        print(f"{PROG}: {args.case}, {net.size} generators (a controller process each, /{spaces[0]} .. /{spaces[-1]}), "
-              f"{args.mode}, {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}")
+        # The logger and the plant, a Rerun bridge, the controllers: beyond 32, discovery is widened to cover them.
+        env = with_participants(env, participants(net, args.deployment, 2 + (args.rerun is not None)))
+        deployment = ("a controller process each" if args.deployment == "separate"
+                      else "their controllers composed in one process")
+        print(f"{PROG}: {args.case}, {net.size} generators ({deployment}, /{spaces[0]} .. /{spaces[-1]}), {args.mode},"
+              f" {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}")
         law = args.law
         gains = ", ".join(f"{name} {'/'.join(f'{v:g}' for v in sorted(set(values.tolist())))}"
                           for name, values in (("tau", law.tau_s), ("K", law.gain_k), ("L", law.gain_l),
@@ -356,7 +396,7 @@ def main(argv=None) -> int:
         summary = write_summary(args.out, {
             "case": args.case, "generators": list(net.names), "namespaces": list(spaces),
             "mbase_mva": net.mbase_mva.tolist(), "scenario": args.scenario_values, "description": args.description,
-            "mode": args.mode, "rate_hz": args.rate, "runs": results})
+            "deployment": args.deployment, "mode": args.mode, "rate_hz": args.rate, "runs": results})
         figure = args.out / "figures.png"
         plot_network(plotted, f"{args.case}: {args.description}; controllers {args.rate:g} Hz over ROS 2", figure)
         written = [str(summary), str(figure)] + ([sink["path"]] if sink and sink["sink"] == "save" else [])

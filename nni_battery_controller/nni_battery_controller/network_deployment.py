@@ -1,13 +1,16 @@
 """One battery controller per generator of a network case: what each node of the deployment is given.
 
-Used by ``nni-demo --case`` and by ``launch/network.launch.py``, so that both
-start the same nodes with the same parameters, read from the case (how many
+Used by ``nni-demo --case``, ``launch/network.launch.py`` and the bench, so
+that all start the same nodes with the same parameters, read from the case (how many
 generators, each one's pre-fault angle and power): generator i (1-based, case
 order) is namespace ``gen<i>``, where the network plant node publishes its
 PMU. Each controller runs the sampled H3-hat with g measured
 (``restoring_power: measured``): g_i = P_m,i - P_e,i(measured), its angle
 measured from its pre-fault angle, in pu of its machine's rating, as
-:mod:`nni_battery_controller.network_sim` does offline. Pure: no ROS import.
+:mod:`nni_battery_controller.network_sim` does offline. The controllers run in
+one of two deployments (:func:`start_controllers`): a process each, or all
+composed in one ``composed_controllers`` process on one executor. No ROS
+import (the processes are started through the project's supervisor).
 """
 
 from __future__ import annotations
@@ -15,12 +18,21 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import yaml
 
 from nni_battery_controller.controller_config import generator_parameters
 from nni_battery_controller.network_cli import DEFAULT_FAULT_BUS
 from nni_battery_controller.network_sim import NetworkLaw
 from nni_msgs_adapter.ros.defaults import controller_defaults
 from nni_plant_sim.network_scenarios import AngleDisplacement, BusFault, LineTrip, MechanicalStep
+
+#: How a case's controllers run: ``separate``, one controller_node process per generator; ``composed``, all of
+#: them as nodes of one composed_controllers process on one executor (one substation computer).
+DEPLOYMENTS = ("separate", "composed")
+CONTROLLER_MODULE = "nni_battery_controller.controller_node"
+COMPOSED_MODULE = "nni_battery_controller.composed_controllers"
+#: composed_controllers' log and params file in the run's log folder.
+COMPOSED_NAME = "composed_controllers"
 
 
 def namespaces(net) -> tuple[str, ...]:
@@ -117,3 +129,32 @@ def plant_parameters(case: str, scenario_values: dict, mode: str, rate_hz: float
     """The network plant node's parameters for one run (it waits for ``readers`` on each generator's pmu)."""
     return {"case": case, **scenario_values, "mode": mode, "pmu_rate_hz": float(rate_hz),
             "duration_s": float(duration_s), "wait_for_subscribers": int(readers)}
+
+
+def participants(net, deployment: str, others: int) -> int:
+    """The DDS participants (processes) of a run: its controllers (one per generator, or one composed process)
+    and ``others`` (the plant, the logger, a Rerun bridge); the deployment's ``NNI_DDS_PARTICIPANTS``."""
+    return (net.size if deployment == "separate" else 1) + others
+
+
+def composed_parameters(controllers: dict) -> dict:
+    """The params file of ``composed_controllers`` for ``{namespace: parameters}``: one section per node."""
+    return {f"{ns}/controller": {"ros__parameters": values} for ns, values in controllers.items()}
+
+
+def start_controllers(procs, controllers: dict, deployment: str) -> list:
+    """Start the controllers ``{absolute namespace: node parameters}`` under supervisor ``procs``; the children.
+
+    ``separate``: one ``controller_node`` process per namespace (log ``controller_gen<i>``); ``composed``: one
+    ``composed_controllers`` process with a params file of a section per node, written to the log folder.
+    """
+    if deployment not in DEPLOYMENTS:
+        raise ValueError(f"deployment must be one of {', '.join(DEPLOYMENTS)}, got {deployment!r}")
+    if deployment == "separate":
+        return [procs.start_node(f"controller_{ns.strip('/')}", CONTROLLER_MODULE, values, ("-r", f"__ns:={ns}"))
+                for ns, values in controllers.items()]
+    procs.log_dir.mkdir(parents=True, exist_ok=True)
+    path = procs.log_dir / f"{COMPOSED_NAME}.yaml"
+    path.write_text(yaml.safe_dump(composed_parameters(controllers), default_flow_style=False))
+    return [procs.start_node(COMPOSED_NAME, COMPOSED_MODULE, {"namespaces": list(controllers)},
+                             ("--params-file", str(path)))]

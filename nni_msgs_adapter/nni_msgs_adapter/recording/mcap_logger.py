@@ -69,6 +69,9 @@ def parameters() -> tuple[Spec, ...]:
 
 #: Prefix of the JSON line with per-topic counts printed at exit.
 COUNTS_PREFIX = "mcap_logger counts: "
+#: Logged (INFO) when a topic's subscription is made, the topic after it: a launcher that must not start the
+#: plant before the recorder listens to every controller can wait for these lines (nni-demo --case does).
+SUBSCRIBED_PREFIX = "recording topic "
 #: Exit status of a logger that could not write its file to the end.
 EXIT_WRITE_FAILURE = 1
 #: Most messages one callback writes from its topic's queue before it hands the executor back.
@@ -169,6 +172,7 @@ class McapLogger(Node):
             msg_class, _, qos = contract.recorder_endpoint(name)
             self._recorded[topic] = self.create_subscription(
                 msg_class, topic, self._writer_for(channel, topic), qos, raw=True)
+            self.get_logger().info(SUBSCRIBED_PREFIX + topic)
 
     def _writer_for(self, channel: int, topic: str):
         """The callback of ``topic``: writes the message and those already queued behind it (``DRAIN_LIMIT`` in all).

@@ -21,6 +21,20 @@ Before ROS starts:
   for a loop spread over hosts: other hosts named in ``ROS_STATIC_PEERS``). A
   ``FASTRTPS_DEFAULT_PROFILES_FILE`` of the user's own is used as it is (said on
   the node's log); set together with ``NNI_NETWORK`` it is refused.
+- Many participants on one host: rmw_fastrtps (Jazzy) under
+  ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` announces a participant to the
+  discovery ports of the host's first 32 participants of the domain only (the
+  ``maxInitialPeersRange`` of its UDP transport), so two participants beyond
+  the 32nd never discover each other. A deployment that starts more processes
+  says how many in ``NNI_DDS_PARTICIPANTS`` (``processes.PARTICIPANTS_ENV``;
+  nni-demo, the bench and the network launch file set it): above 32 the
+  node gets the loopback profile with its UDP transport's
+  ``maxInitialPeersRange`` raised to cover them (a copy written to a folder
+  of the user's own in the temporary directory; the whitelist and everything
+  else as shipped). Not
+  always raised: each step of 32 costs every participant as many more
+  announcement datagrams a second (measured: 13 idle participants used 1.7 %
+  of a core more with 128 than with 32).
 - SROS2: with ``ROS_SECURITY_ENABLE=true`` the strategy defaults to ``Enforce``
   (ROS's default, ``Permissive``, silently runs without security when the
   enclave is missing), and a middleware that cannot do DDS Security (the Fast
@@ -48,6 +62,7 @@ from rclpy.utilities import remove_ros_args
 
 from nni_msgs_adapter.ros.cli_support import EXIT_USAGE
 from nni_msgs_adapter.ros.defaults import config_path
+from nni_msgs_adapter.ros.processes import PARTICIPANTS_ENV
 
 #: Longest wait inside the executor, s: how soon a signal is noticed.
 _SIGNAL_POLL_S = 0.05
@@ -58,6 +73,16 @@ NETWORK_ENV = "NNI_NETWORK"
 #: NNI_NETWORK value -> Fast DDS profile in nni_msgs_adapter/config.
 NETWORK_PROFILES = {"loopback": "fastdds_profiles.xml", "multihost": "fastdds_profiles_multihost.xml"}
 DEFAULT_NETWORK = "loopback"
+#: Participants of a domain that rmw_fastrtps (Jazzy) discovers on one host under LOCALHOST discovery (the
+#: maxInitialPeersRange it gives its UDP transport); a wider range is given in steps of this.
+LOCALHOST_PEER_RANGE = 32
+#: Most participants of one domain on one host: RTPS gives participant i the ports 7410 + 250 d + 2 i, so
+#: beyond 120 they run into the next domain's (d + 1) ports.
+MAX_PARTICIPANTS = 120
+#: File name prefix of the loopback profile copies with a wider range (in the temporary directory).
+_WIDENED_PREFIX = "nni_fastdds_loopback_peers"
+#: The Fast DDS profile schema's namespace.
+_FASTDDS_XMLNS = "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"
 #: SROS2 switches read by rcl.
 SECURITY_ENABLE_ENV = "ROS_SECURITY_ENABLE"
 SECURITY_STRATEGY_ENV = "ROS_SECURITY_STRATEGY"
@@ -160,25 +185,116 @@ def network_profile(network: str) -> Path:
 def select_dds_profile(environ) -> str | None:
     """Point ``FASTRTPS_DEFAULT_PROFILES_FILE`` in ``environ`` at the profile ``NNI_NETWORK`` selects.
 
+    With ``NNI_DDS_PARTICIPANTS`` above ``LOCALHOST_PEER_RANGE``, the loopback
+    profile with a discovery range covering them (:func:`loopback_profile_for`).
     Fast DDS reads the variable when the first participant is created, after
     this. Returns the user's own profile file when one is set and left alone
     (None when the file is ours); raises StartupError for an unknown
-    ``NNI_NETWORK`` or one set beside a profile file of the user's own.
+    ``NNI_NETWORK``, one set beside a profile file of the user's own, or a
+    participant count that is not a count, is beyond ``MAX_PARTICIPANTS``, or
+    above 32 where it cannot be honoured (the multi-host profile, a profile of
+    the user's own).
     """
     network = environ.get(NETWORK_ENV, "")
     if network and network not in NETWORK_PROFILES:
         raise StartupError(f"{NETWORK_ENV} must be one of {', '.join(NETWORK_PROFILES)}, got {network!r}")
+    participants = participant_count(environ)
+    many = participants > LOCALHOST_PEER_RANGE
     own = environ.get(FASTDDS_PROFILES_ENV, "")
-    if not own:
-        environ[FASTDDS_PROFILES_ENV] = str(network_profile(network or DEFAULT_NETWORK))
-        return None
-    ours = {network_profile(name).resolve() for name in ([network] if network else NETWORK_PROFILES)}
-    if Path(own).resolve() in ours:
-        return None
-    if network:
-        raise StartupError(f"{NETWORK_ENV}={network} and {FASTDDS_PROFILES_ENV}={own} both choose the DDS profile: "
-                           "unset one of them")
-    return own
+    names = [network] if network else list(NETWORK_PROFILES)
+    ours = {network_profile(name).resolve(): name for name in names}
+    if own and Path(own).resolve() not in ours and not is_widened_loopback(own):
+        if network:
+            raise StartupError(f"{NETWORK_ENV}={network} and {FASTDDS_PROFILES_ENV}={own} both choose the DDS "
+                               "profile: unset one of them")
+        if many:
+            raise StartupError(f"{PARTICIPANTS_ENV}={participants} needs the loopback profile with a wider discovery "
+                               f"range, but {FASTDDS_PROFILES_ENV}={own} is set: unset it, or raise "
+                               "maxInitialPeersRange in that file and unset the count")
+        return own
+    chosen = network or (ours.get(Path(own).resolve(), DEFAULT_NETWORK) if own else DEFAULT_NETWORK)
+    if many:
+        if chosen != DEFAULT_NETWORK:
+            raise StartupError(f"{PARTICIPANTS_ENV}={participants}: more than {LOCALHOST_PEER_RANGE} participants "
+                               f"on a host are discovered with the {DEFAULT_NETWORK} profile only, not {chosen}")
+        environ[FASTDDS_PROFILES_ENV] = str(loopback_profile_for(participants))
+    elif not own:
+        environ[FASTDDS_PROFILES_ENV] = str(network_profile(chosen))
+    return None
+
+
+def participant_count(environ) -> int:
+    """``NNI_DDS_PARTICIPANTS`` (0 when unset): the deployment's processes on this host; StartupError if invalid."""
+    text = environ.get(PARTICIPANTS_ENV, "")
+    try:
+        count = int(text) if text else 0
+    except ValueError:
+        count = -1
+    if not 0 <= count <= MAX_PARTICIPANTS:
+        raise StartupError(f"{PARTICIPANTS_ENV} must be a count of processes, 0 to {MAX_PARTICIPANTS} (the RTPS "
+                           f"ports of one domain on one host), got {text!r}")
+    return count
+
+
+def peer_range(participants: int) -> int:
+    """The ``maxInitialPeersRange`` that covers ``participants``: whole steps of 32, at most ``MAX_PARTICIPANTS``."""
+    return min(-(-participants // LOCALHOST_PEER_RANGE) * LOCALHOST_PEER_RANGE, MAX_PARTICIPANTS)
+
+
+def _widened_folder() -> Path:
+    """This user's folder of widened loopback profiles (``$TMPDIR/nni-dds-<uid>``)."""
+    import tempfile
+
+    return Path(tempfile.gettempdir()) / f"nni-dds-{os.getuid()}"
+
+
+def is_widened_loopback(path: str) -> bool:
+    """Whether ``path`` is a copy of the loopback profile written by :func:`loopback_profile_for` (in its folder)."""
+    resolved = Path(path).resolve()
+    return resolved.parent == _widened_folder().resolve() and resolved.name.startswith(_WIDENED_PREFIX)
+
+
+def loopback_profile_for(participants: int) -> Path:
+    """The shipped loopback profile with its UDP transport's ``maxInitialPeersRange`` covering ``participants``.
+
+    Written once to a directory of this user's own in the temporary directory
+    (mode 0700: no other local user can plant a profile there that opens the
+    loop to the network), named by the range and the shipped file's digest
+    (every process of a deployment finds the same file; a changed profile gets
+    a new one), atomically (processes starting together never read a
+    half-written file).
+    """
+    import hashlib
+    import xml.etree.ElementTree as ElementTree
+
+    shipped = network_profile(DEFAULT_NETWORK)
+    peers = peer_range(participants)
+    digest = hashlib.sha256(shipped.read_bytes()).hexdigest()[:12]
+    folder = _widened_folder()
+    folder.mkdir(mode=0o700, exist_ok=True)
+    status = folder.stat()
+    if status.st_uid != os.getuid() or status.st_mode & 0o077:
+        raise StartupError(f"{folder} is not a folder of this user's alone (owner {status.st_uid}, mode "
+                           f"{status.st_mode & 0o777:o}): it would hold the DDS profile of the nodes; remove it")
+    path = folder / f"{_WIDENED_PREFIX}{peers}_{digest}.xml"
+    if path.exists():
+        return path
+    ElementTree.register_namespace("", _FASTDDS_XMLNS)
+    tree = ElementTree.parse(shipped)
+    udp = [d for d in tree.iter(f"{{{_FASTDDS_XMLNS}}}transport_descriptor")
+           if d.findtext(f"{{{_FASTDDS_XMLNS}}}type") == "UDPv4"]
+    if len(udp) != 1:
+        raise StartupError(f"the shipped DDS profile {shipped} has {len(udp)} UDPv4 transports, expected one")
+    element = ElementTree.Element(f"{{{_FASTDDS_XMLNS}}}maxInitialPeersRange")
+    element.text = str(peers)
+    udp[0].insert(list(udp[0]).index(udp[0].find(f"{{{_FASTDDS_XMLNS}}}type")) + 1, element)
+    tree.getroot().insert(0, ElementTree.Comment(
+        f" {shipped.name} with maxInitialPeersRange {peers} on its UDP transport, for {PARTICIPANTS_ENV} up to "
+        f"{peers} (nni_msgs_adapter.ros.node_main); see that file for the rest. "))
+    part = path.with_name(f"{path.name}.{os.getpid()}.part")
+    tree.write(part, xml_declaration=True, encoding="UTF-8")
+    os.replace(part, path)
+    return path
 
 
 def security_requested(environ) -> bool:
@@ -238,6 +354,10 @@ def help_text(factory, prog: str) -> str:
                          "loopback: DDS only on 127.0.0.1 and shared memory (other hosts and network namespaces "
                          "cannot join); multihost: every interface, for a loop over several hosts (name them in "
                          "ROS_STATIC_PEERS).")
+    lines += _help_entry(f"{PARTICIPANTS_ENV} [unset]",
+                         f"how many ROS processes the deployment runs on this host (nni-demo --case and the network "
+                         f"launch file set it); above {LOCALHOST_PEER_RANGE}, the loopback profile's discovery range "
+                         f"is widened to cover them (at most {MAX_PARTICIPANTS}).")
     lines += _help_entry(f"{SECURITY_ENABLE_ENV}, ROS_SECURITY_KEYSTORE, --ros-args --enclave /nni/<node>",
                          "SROS2 on ROS 2 Jazzy installs (the PyPI Fast DDS has no DDS Security): README, Security.")
     return "\n".join(lines)

@@ -22,6 +22,9 @@ from pathlib import Path
 STOP_GRACE_S = 10.0
 #: Linux prctl option: the signal a process gets when its parent dies.
 _PR_SET_PDEATHSIG = 1
+#: The number of DDS participants (ROS processes) a deployment starts on this host, in its children's
+#: environment: above 32 their discovery range is widened to cover them (node_main.select_dds_profile).
+PARTICIPANTS_ENV = "NNI_DDS_PARTICIPANTS"
 
 
 class ChildError(RuntimeError):
@@ -34,6 +37,11 @@ def node_command(module: str, params: dict | None = None, ros_args: tuple = ()) 
     for key, value in (params or {}).items():
         args += ["-p", f"{key}:={parameter_text(value)}"]
     return [sys.executable, "-m", module, *(["--ros-args", *args] if args else [])]
+
+
+def with_participants(env: dict, participants: int) -> dict:
+    """``env`` for a deployment of ``participants`` processes on this host (``NNI_DDS_PARTICIPANTS``)."""
+    return {**env, PARTICIPANTS_ENV: str(int(participants))}
 
 
 def parameter_text(value) -> str:
