@@ -277,8 +277,8 @@ def diagnostics_message(stamp_ns: int, name: str, hardware_id: str, level: str, 
     one absolute topic stay apart (:func:`split_status_name` reads it back).
     """
     namespace = hardware_id.rpartition("/")[0].strip("/")
-    status = DiagnosticStatus(level=getattr(DiagnosticStatus, level), name=f"{namespace}/{name}" if namespace else name, message=message,
-                              hardware_id=hardware_id)
+    status = DiagnosticStatus(level=getattr(DiagnosticStatus, level), name=f"{namespace}/{name}" if namespace else name,
+                              message=message, hardware_id=hardware_id)
     status.values = [KeyValue(key=key, value=_format_value(value)) for key, value in values.items()]
     msg = DiagnosticArray()
     msg.header.stamp = time_from_ns(stamp_ns)
