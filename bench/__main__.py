@@ -330,6 +330,7 @@ def network_loop(env: dict, log_dir: Path, case: str, mode: str, rate_hz: float,
         controller_parameters,
         default_law,
         namespaces,
+        participants,
         start_controllers,
     )
     from nni_plant_sim.cases import load_network
@@ -338,7 +339,7 @@ def network_loop(env: dict, log_dir: Path, case: str, mode: str, rate_hz: float,
     law = default_law(net)
     parameters = {f"/{ns}": controller_parameters(net, i, NETWORK_BATTERY_LIMIT_PU, rate_hz, law)
                   for i, ns in enumerate(namespaces(net))}
-    env = with_participants(env, 1 + (1 if deployment == "composed" else net.size))
+    env = with_participants(env, participants(net, deployment, 1))  # the controllers and the plant
     with children(env, log_dir) as procs:
         controllers = start_controllers(procs, parameters, deployment)
         plant = procs.start_node("plant", "nni_plant_sim.network_plant_node",

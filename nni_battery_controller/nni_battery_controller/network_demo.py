@@ -70,6 +70,7 @@ from nni_battery_controller.network_deployment import (
 from nni_battery_controller.network_sim import ANGLE_REFERENCES, NetworkLaw, assess_network
 from nni_msgs_adapter.recording.mcap_logger import SUBSCRIBED_PREFIX
 from nni_msgs_adapter.recording.runs import network_trajectory, read_generator_runs
+from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,
@@ -89,7 +90,7 @@ PLANT = "nni_plant_sim.network_plant_node"
 #: Longest wait, s, for the logger to subscribe to every controller's topics before the plant starts.
 RECORDER_WAIT_S = 120.0
 #: Each controller's topics the logger must record from the first sample on (the plant's it waits for itself).
-CONTROLLER_TOPICS = ("battery/command", "controller/state")
+CONTROLLER_TOPICS = (contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE)
 #: (option dest, NetworkLaw field) of each gain.
 GAINS = (("tau", "tau_s"), ("gain_k", "gain_k"), ("gain_l", "gain_l"), ("alpha", "alpha"))
 #: The plant's counters shown per generator: the trust counters (any non-zero one compromises a run) and
@@ -299,9 +300,11 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
     counts = logger_counts(logger.output())
     loops = plant_summary(plant.output(), SUMMARY_PREFIX)
     for ns in spaces:
-        check_complete(recording, counts.get(f"/{ns}/pmu", 0), int(loops[ns]["measurements"]), logs, f" to /{ns}")
-        check_complete(recording, counts.get(f"/{ns}/battery/command", 0), int(loops[ns]["commands"]), logs,
-                       f" from /{ns}'s controller", "battery commands the plant received")
+        check_complete(recording, counts.get(f"/{ns}/{contract.TOPIC_PMU}", 0), int(loops[ns]["measurements"]),
+                       logs, f" to /{ns}")
+        check_complete(recording, counts.get(f"/{ns}/{contract.TOPIC_BATTERY_COMMAND}", 0),
+                       int(loops[ns]["commands"]), logs, f" from /{ns}'s controller",
+                       "battery commands the plant received")
     runs = read_generator_runs(recording)
     if bridge is not None:
         wait_for_bridge(bridge, index, runs, logs)
