@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from test_verdicts_options import png_title
 
 SIMULATE = [str(Path(sys.executable).with_name("nni-simulate"))]
 
@@ -42,6 +43,7 @@ def test_kundur_fault_run_prints_per_generator_verdicts_and_writes_json_and_figu
     assert max(g["max_abs_battery_power_pu"] for g in with_battery) == pytest.approx(0.3)
     assert max(g["max_abs_battery_power_mw"] for g in with_battery) == pytest.approx(270.0)  # 0.3 of 900 MVA
     assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert png_title(out_png) == "kundur_two_area: bus fault at bus 7 (Z = 0+0j pu), cleared at 0.1 s; controller 50 Hz"
 
 
 def test_cct_finds_a_bracket_of_one_millisecond(tmp_path):

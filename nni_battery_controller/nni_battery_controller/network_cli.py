@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from nni_battery_controller.cli import DEFAULT_DELAY_MAX_S, delay_margin_row, delay_search_text
+from nni_battery_controller.cli import DEFAULT_DELAY_MAX_S, delay_margin_row, delay_search_text, save_png
 from nni_battery_controller.network_sim import (
     ANGLE_REFERENCES,
     NetworkLaw,
@@ -244,13 +244,13 @@ def plot_network(runs, title: str, path) -> None:
         axes[2, column].set_xlabel("time after the disturbance (s)")
     axes[0, 0].set_ylabel("rotor angle - COI angle (deg)")
     axes[1, 0].set_ylabel("frequency deviation (Hz)")
-    axes[2, 0].set_ylabel("battery power P_ST (pu of rating; limits dashed)")
+    axes[2, 0].set_ylabel("battery P_ST (pu of rating; limits dashed)")
     axes[0, 0].legend(loc="upper right", fontsize="small", ncol=2)
     for ax in axes.flat:
         ax.grid(True, alpha=0.3)
-    fig.suptitle(title)
-    with atomic_output(path, "wb") as handle:
-        fig.savefig(handle, format="png", dpi=100)
+    # Wrapped at the figure's edges when drawn: a one-run figure cut its title off at both.
+    fig.suptitle(title, wrap=True)
+    save_png(fig, path)
     plt.close(fig)
 
 
