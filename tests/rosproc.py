@@ -120,6 +120,7 @@ class Probe:
             self._subscriptions[topic] = self.node.create_subscription(msg_class, name, self._recorder(topic), qos)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
+        self._stop = threading.Event()
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
 
@@ -136,11 +137,8 @@ class Probe:
         self._handlers.setdefault(topic, []).append(handler)
 
     def _spin(self):
-        while self.context.ok():
-            try:
-                self.executor.spin_once(timeout_sec=0.05)
-            except Exception:  # context shut down under us at close()
-                return
+        while not self._stop.is_set() and self.context.ok():
+            self.executor.spin_once(timeout_sec=0.05)
 
     def _publisher(self, topic):
         from nni_msgs_adapter.ros import contract
@@ -178,10 +176,17 @@ class Probe:
         return self.take(topic)
 
     def close(self):
-        """Stop spinning and release DDS resources."""
+        """Stop spinning, then release DDS resources: the node goes only once its spin thread has ended.
+
+        The thread ends within one ``spin_once`` (0.05 s) and the handler it runs; destroying the node
+        or shutting the context down while it is inside ``spin_once`` can hang (seen once under load).
+        """
         import rclpy
 
-        rclpy.try_shutdown(context=self.context)
-        self._thread.join(timeout=2.0)
+        self._stop.set()
+        self._thread.join(timeout=60.0)
+        if self._thread.is_alive():
+            raise RuntimeError("the probe's spin thread did not end within 60 s of close()")
         self.executor.shutdown(timeout_sec=1.0)
         self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
