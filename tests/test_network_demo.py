@@ -521,12 +521,12 @@ def test_a_second_writer_on_one_generators_battery_makes_the_run_compromised(tmp
                              "--duration", "1", "--out", str(tmp_path), "--domain-id", str(domain)],
                             env=ros_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        in_loop = rogue.wait_matched(contract.TOPIC_BATTERY_COMMAND, 2, 120.0)  # the logger's and the plant's
         stdout, stderr = demo.communicate(timeout=300)
     finally:
         demo.kill()
         rogue.close()
-    assert in_loop, "the rogue's writer never matched the plant's battery/command subscription"
+    # The demo's own verdict is the evidence that the rogue was in the loop (it names /gen2's writer alarms);
+    # a wait for the rogue's matches before it failed twice in whole-suite runs and said nothing of the demo.
     assert demo.returncode == 3, stdout + stderr
     (line,) = [line for line in stdout.splitlines() if "COMPROMISED" in line]
     assert line.strip().startswith("b = 0.1: COMPROMISED (not a valid result): /gen2: ") and "/gen1" not in line
