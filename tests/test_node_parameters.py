@@ -21,6 +21,9 @@ PLANT = "nni_plant_sim.plant_node"
     (PLANT, {"p_mech_pu": 1.5}, "P_M must be less than P_max"),
     (PLANT, {"mode": "fast"}, "mode must be one of realtime, lockstep"),
     (PLANT, {"pmu_rate_hz": 5.0}, "pmu_rate_hz"),
+    # A misspelt choice ran silently as the default choice (restoring_power as model, reference as pmu).
+    (CONTROLLER, {"restoring_power": "measurd"}, "restoring_power must be one of model, measured, got 'measurd'"),
+    (CONTROLLER, {"reference": "centre"}, "reference must be one of pmu, coi, got 'centre'"),
 ])
 def test_invalid_start_up_values_stop_the_node_with_one_line(tmp_path, module, params, reason):
     with node_processes(tmp_path, fresh_domain_id()) as start:

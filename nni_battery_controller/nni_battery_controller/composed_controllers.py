@@ -18,7 +18,7 @@ from rclpy.node import Node
 from nni_battery_controller import controller_config
 from nni_battery_controller.controller_node import ControllerNode
 from nni_msgs_adapter.ros.node_main import run_node
-from nni_msgs_adapter.ros.ros_params import Spec, current_values, declare
+from nni_msgs_adapter.ros.ros_params import Spec, declared_values
 
 #: The host node's name (it holds ``namespaces`` and nothing else).
 HOST_NAME = "composed_controllers"
@@ -34,8 +34,7 @@ def parameters() -> tuple[Spec, ...]:
 def compose() -> list[Node]:
     """The host node and one ControllerNode per namespace; ValueError naming the node that cannot start."""
     host = Node(HOST_NAME)
-    declare(host, (NAMESPACES,))
-    namespaces = current_values(host, (NAMESPACES,))["namespaces"]
+    namespaces = declared_values(host, (NAMESPACES,))["namespaces"]
     if not namespaces:
         raise ValueError("namespaces is empty: give the generators' namespaces, e.g. -p namespaces:=\"['/gen1']\"")
     controller_config.check_namespaces("namespaces", namespaces)

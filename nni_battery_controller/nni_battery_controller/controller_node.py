@@ -14,7 +14,7 @@ from nni_battery_controller.controller_config import ControllerConfig, parameter
 from nni_battery_controller.controller_core import ControllerCore
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.node_main import run_node
-from nni_msgs_adapter.ros.ros_params import current_values, declare, install_validation
+from nni_msgs_adapter.ros.ros_params import declared_values, install_validation
 
 
 class ControllerNode(Node):
@@ -22,8 +22,7 @@ class ControllerNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__("controller", **kwargs)
-        declare(self, parameters())
-        config = ControllerConfig(current_values(self, parameters()), self.get_namespace())
+        config = ControllerConfig(declared_values(self, parameters()), self.get_namespace())
         self._core, self._clock_ns = ControllerCore(config), None
         warm = ControllerCore.warm_up(config)
         contract.command_message(0, warm.power_pu), contract.controller_state_message(*warm.signals())

@@ -34,7 +34,7 @@ from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
 from nni_msgs_adapter.ros import contract
-from nni_msgs_adapter.ros.ros_params import check_choices, current_values, declare, install_validation, locked_changes
+from nni_msgs_adapter.ros.ros_params import declared_values, install_validation, locked_changes
 from nni_plant_sim.plant_config import link_from
 from nni_plant_sim.reporting import CommandChannel, LockstepStepper, PmuSensor, RealtimeReporter, SubscriberWait
 from nni_plant_sim.scenarios import StartingAt
@@ -48,9 +48,7 @@ class PlantNodeBase(Node):
     def __init__(self, node_name: str, specs, **kwargs):
         super().__init__(node_name, **kwargs)
         self._specs = specs
-        declare(self, specs)
-        values = current_values(self, specs)
-        check_choices(values, specs)
+        values = declared_values(self, specs)
         self._loop = None  # the reporting core, from the start of the run
         self._configure(values)
         install_validation(self, specs, self._validate, self._install)

@@ -49,7 +49,7 @@ from nni_msgs_adapter.recording.mcap_io import (
 )
 from nni_msgs_adapter.ros.node_main import run_node
 from nni_msgs_adapter.recording.runs import RUN_METADATA_NAME, split_topic
-from nni_msgs_adapter.ros.ros_params import Spec, current_values, declare
+from nni_msgs_adapter.ros.ros_params import Spec, declared_values
 
 @functools.cache
 def parameters() -> tuple[Spec, ...]:
@@ -116,8 +116,7 @@ class McapLogger(Node):
 
     def __init__(self, **kwargs):
         super().__init__("mcap_logger", **kwargs)
-        declare(self, parameters())
-        values = current_values(self, parameters())
+        values = declared_values(self, parameters())
         metadata = run_metadata_record(values["run_metadata"])
         path = Path(values["output_path"] or datetime.now().strftime("nni_%Y%m%d_%H%M%S.mcap"))
         if not path.parent.is_dir():

@@ -72,6 +72,18 @@ def current_values(node, specs) -> dict:
     return values
 
 
+def declared_values(node, specs) -> dict:
+    """Declare every spec on ``node`` and return the values it starts with; ValueError for one not among its choices.
+
+    What every node does first: a value that is not among its choices stops it (one line, exit 2, from
+    :mod:`.node_main`) instead of running as some other choice.
+    """
+    declare(node, specs)
+    values = current_values(node, specs)
+    check_choices(values, specs)
+    return values
+
+
 def check_choices(values: dict, specs) -> None:
     """ValueError naming the first parameter whose value is not among its choices."""
     for spec in specs:

@@ -55,7 +55,7 @@ from rclpy.parameter import Parameter
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.defaults import plant_defaults
 from nni_msgs_adapter.ros.node_main import run_node
-from nni_msgs_adapter.ros.ros_params import Spec, check_choices, current_values, declare
+from nni_msgs_adapter.ros.ros_params import Spec, declared_values
 from nni_msgs_adapter.viewing.palette import colour_rgb, generator_colour_rgb
 from nni_msgs_adapter.viewing.rerun_view import APP_ID, NETWORK_VIEW, LiveLogger, blueprint, open_recording
 
@@ -159,11 +159,9 @@ class RerunBridge(Node):
 
     def __init__(self, **kwargs):
         super().__init__("rerun_bridge", **kwargs)
-        declare(self, parameters())
+        values = declared_values(self, parameters())
         self.declare_parameter(NAMESPACES_PARAMETER, Parameter.Type.STRING_ARRAY,
                                ParameterDescriptor(description=NAMESPACES_DESCRIPTION, read_only=True))
-        values = current_values(self, parameters())
-        check_choices(values, parameters())
         namespaces = self.get_parameter_or(NAMESPACES_PARAMETER).value or []
         self._net = network_of(namespaces, values["case"])
         self._namespaces = tuple(namespaces) or ("",)
