@@ -99,3 +99,10 @@ def test_mechanical_step_and_displacement_scenarios_run():
     moved = run("--case", "kundur_two_area", "--scenario", "angle_displacement", "--machine", "1", "2",
                 "--displace", "0.3", "--b", "inf", "--duration", "3")
     assert "angles of G1@1, G2@2 displaced by 0.3 rad" in moved.stdout.splitlines()[0]
+
+
+def test_the_paper_studys_help_leads_to_the_network_study():
+    """``nni-simulate --help`` is where a user starts: it must say how to reach ``--case`` and its options."""
+    assert "nni-simulate --case CASE --help" in " ".join(run("--help").stdout.split())
+    network_help = run("--case", "ieee39", "--help").stdout
+    assert network_help.startswith("usage: nni-simulate [-h] --case CASE") and "--fault-bus" in network_help

@@ -12,6 +12,10 @@ The sampled-data runs take a communication link (--link-delay, --link-jitter,
 --link-loss, --link-seed: what the plant nodes' link_* parameters model);
 --delay-margin finds, per b, the largest fixed measurement-to-command delay
 that keeps the run in synchronism.
+
+A network of generators, with the same law at every generator, instead:
+nni-simulate --case kundur_two_area|ieee39|kundur_ring_52|FILE.m ...; its
+options: nni-simulate --case CASE --help.
 """
 
 from __future__ import annotations
