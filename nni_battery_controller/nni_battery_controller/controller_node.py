@@ -15,6 +15,7 @@ from nni_battery_controller.controller_core import ControllerCore
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.node_main import run_node
 from nni_msgs_adapter.ros.ros_params import declared_values, install_validation
+from nni_msgs_adapter.ros.serialised import Serialiser
 
 
 class ControllerNode(Node):
@@ -24,8 +25,11 @@ class ControllerNode(Node):
         super().__init__("controller", **kwargs)
         config = ControllerConfig(declared_values(self, parameters()), self.get_namespace())
         self._core, self._clock_ns = ControllerCore(config), None
-        warm = ControllerCore.warm_up(config)
-        contract.command_message(0, warm.power_pu), contract.controller_state_message(*warm.signals())
+        self._clock = self.get_clock()
+        ControllerCore.warm_up(config).signals()  # the first W_hat's numpy calls here, not at sample 0
+        # Answers go out as bytes (serialised.Serialiser: one layout per topic, new values).
+        self._command_bytes = Serialiser(contract.command_message, 1)
+        self._state_bytes = Serialiser(contract.controller_state_message, 7)
         self._command_pub, self._state_pub, self._diag_pub = contract.publishers(
             self, contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE, contract.TOPIC_DIAGNOSTICS)
         self._pmu_subs = [contract.subscribe(self, contract.TOPIC_PMU, lambda msg, i=i: self._on_pmu(i, msg), ns)
@@ -44,7 +48,7 @@ class ControllerNode(Node):
         self._stale_timer.timer_period_ns = config.gate_bounds[0]
 
     def _on_pmu(self, index: int, msg) -> None:
-        arrival_ns = self.get_clock().now().nanoseconds
+        arrival_ns = contract.now_ns(self._clock)
         try:
             reading = contract.pmu_from_message(msg)
         except contract.ContractError:
@@ -52,9 +56,9 @@ class ControllerNode(Node):
         answer = self._core.receive(index, reading, msg.effort, self._pmu_subs[index].get_publisher_count(),
                                     arrival_ns, self._clock_ns, self._clock_sub.get_publisher_count)
         if answer is not None:
-            self._command_pub.publish(contract.command_message(answer.stamp_ns, answer.power_pu))
+            self._command_pub.publish(self._command_bytes.serialise(answer.stamp_ns, answer.power_pu))
             self._stale_timer.reset()  # bookkeeping after the answer is out: none of it changes the command
-            self._state_pub.publish(contract.controller_state_message(*answer.signals()))
+            self._state_pub.publish(self._state_bytes.serialise(*answer.signals()))
 
     def _on_diagnostics(self, msg) -> None:
         if contract.plant_run_ended(msg, self.get_namespace()) and self._core.end_of_run():
@@ -62,14 +66,14 @@ class ControllerNode(Node):
                                    "measurements: waiting for the next run")
 
     def _check_stale(self) -> None:
-        stamp_ns = self._core.silence(self.get_clock().now().nanoseconds, self._clock_sub.get_publisher_count() > 0)
+        stamp_ns = self._core.silence(contract.now_ns(self._clock), self._clock_sub.get_publisher_count() > 0)
         if stamp_ns is not None:
             self._command_pub.publish(contract.command_message(stamp_ns, 0.0))
             self.get_logger().warning(f"no measurement for {self._core.config.stale_after_s:g} s: battery power set to zero")
 
     def _publish_diagnostics(self) -> None:
         level, message, values = self._core.status()
-        self._diag_pub.publish(contract.diagnostics_message(self.get_clock().now().nanoseconds, "controller",
+        self._diag_pub.publish(contract.diagnostics_message(contract.now_ns(self._clock), "controller",
                                                             self.get_fully_qualified_name(), level, message, values))
 
     def close(self) -> None:
