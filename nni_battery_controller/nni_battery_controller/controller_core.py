@@ -43,16 +43,19 @@ on it unattributable, as the plant treats its command topic).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from nni_battery_controller.input_gate import MAX_PLAUSIBLE_ANGLE_RAD, InputGate, Verdict
 from nni_battery_controller.law import ControllerParams, SampledController, closed_loop_lyapunov
 from nni_plant_sim.model import SmibParams
 
 
-@dataclass(frozen=True)
-class Answer:
-    """One step of the law: the command (power, pu) and the internal signals behind it."""
+class Answer(NamedTuple):
+    """One step of the law: the command (power, pu) and the internal signals behind it.
+
+    A NamedTuple, not a frozen dataclass: one is made per measurement, on the controller's
+    critical path (as :class:`nni_plant_sim.reporting.Report`: about 0.5 us against 2 us).
+    """
 
     stamp_ns: int
     power_pu: float

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -78,8 +79,22 @@ class Link:
         """The same link with another fixed delay (the delay-margin search)."""
         return Link(delay_s, self.jitter_s, self.loss, self.seed)
 
+    @cached_property
+    def _fixed_delays(self) -> tuple | None:
+        """Each generator's delay (s, rounded as :meth:`draw` rounds), when no generator has jitter or loss; else None.
+
+        What :meth:`draw` returns then, looked up: it runs once per answer, on the lockstep plant's
+        critical path (1.2 us drawn, 0.2 looked up).
+        """
+        if any(self.jitter_s) or any(self.loss):
+            return None
+        return tuple(round(delay, DELAY_DECIMALS) for delay in self.delay_s)
+
     def draw(self, generator: int, k: int) -> float | None:
         """Delay (s, rounded to 1 ns) of the answer to measurement ``k`` of ``generator`` (0-based); None: lost."""
+        fixed = self._fixed_delays
+        if fixed is not None:
+            return fixed[0] if len(fixed) == 1 else fixed[generator]
         delay, jitter, loss = (self._of(v, generator) for v in (self.delay_s, self.jitter_s, self.loss))
         if not (jitter or loss):
             return round(delay, DELAY_DECIMALS)

@@ -146,7 +146,10 @@ def swing_acceleration(delta_rad, speed_rad_s, battery_power_pu, plant: SmibPara
         changes them over time; see :mod:`nni_plant_sim.scenarios`).
     """
     if isinstance(delta_rad, float):
-        sine = math.sin(delta_rad) if math.isfinite(delta_rad) else math.nan
+        try:
+            sine = math.sin(delta_rad)
+        except ValueError:  # +-inf (NaN goes through as NaN); cheaper than testing every call
+            sine = math.nan
     else:
         sine = np.sin(delta_rad)
     return network.swing_acceleration(p_mech_pu, battery_power_pu, p_max_pu * sine, speed_rad_s, plant.damping_pu,

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -170,5 +171,10 @@ class StartingAt:
 
     def breakpoints(self) -> tuple[float, ...]:
         """The start and the scenario's own breakpoints, shifted."""
+        return self._breakpoints
+
+    @cached_property
+    def _breakpoints(self) -> tuple[float, ...]:
+        # Asked for once per integrated period, on the plant's critical path: built once.
         return (self.start_s, *(self.start_s + tb for tb in self.scenario.breakpoints()))
 
