@@ -22,6 +22,7 @@ from nni_battery_controller.simulate import simulate_continuous
 from nni_plant_sim.integrators import advance, rk4_step
 from nni_plant_sim.model import (
     SmibParams,
+    held_acceleration,
     critical_angles_rad,
     eac_stable,
     equal_area_margin,
@@ -31,6 +32,7 @@ from nni_plant_sim.model import (
     lyapunov_w,
     restoring_energy,
     restoring_power,
+    swing_acceleration,
     swing_rhs,
 )
 from nni_plant_sim.scenarios import InitialAngle, MechanicalPowerStep, TransferLimitFault
@@ -349,6 +351,29 @@ def test_one_trajectory_on_floats_equals_the_same_trajectory_in_a_batch(paper_pl
         assert_allclose(one, batch[:, column], rtol=1e-13, atol=1e-13)
         assert_allclose(rk4_step(0.0, starts[:, column], 1e-3, 0.1, paper_plant, fault),
                         rk4_step(0.0, starts, 1e-3, 0.1, paper_plant, fault)[:, column], rtol=1e-15, atol=1e-15)
+
+
+@ALGEBRA
+@given(plant=plants, delta=st.floats(-1e3, 1e3), speed=st.floats(-1e3, 1e3), battery_pu=st.floats(-5, 5),
+       p_mech=st.floats(0, 3), p_max=st.floats(0, 3))
+def test_the_float_form_of_the_swing_equation_is_the_general_one_bit_for_bit(plant, delta, speed, battery_pu,
+                                                                             p_mech, p_max):
+    """held_acceleration on floats (the plant node's path) is swing_acceleration, to the last bit.
+
+    Both against M delta'' = P_M + P_ST - P_max sin(delta) - D delta', evaluated here left to right.
+    """
+    fast = held_acceleration(plant, p_mech, p_max, battery_pu, delta)(delta, speed)
+    general = swing_acceleration(delta, speed, battery_pu, plant, p_mech, p_max)
+    m = 2.0 * plant.inertia_h_s / (2.0 * math.pi * plant.f0_hz)
+    assert fast == general == (p_mech + battery_pu - p_max * math.sin(delta) - plant.damping_pu * speed) / m
+
+
+def test_an_infinite_angle_integrates_to_nan_on_floats_as_in_a_batch(paper_plant):
+    """math.sin raises at an infinite angle where np.sin gives NaN: advance() gives NaN on both paths."""
+    fault = TransferLimitFault(0.2, 0.15)
+    one = advance(0.0, 0.01, np.array([math.inf, 0.0]), 0.1, paper_plant, fault)
+    batch = advance(0.0, 0.01, np.array([[math.inf], [0.0]]), 0.1, paper_plant, fault)
+    assert np.isnan(one).all() and np.isnan(batch).all()
 
 
 def test_advance_through_a_fault_matches_an_adaptive_reference(paper_plant):

@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from nni_plant_sim.model import acceleration_of, plant_rate
+from nni_plant_sim.model import held_acceleration, plant_rate
 
 
 def rk4(rate, t: float, x: tuple, h: float, u, params) -> tuple:
@@ -54,7 +54,8 @@ def rk4_step(t: float, x, h: float, battery_power_pu, plant, scenario) -> np.nda
     (callers split steps at the scenario's breakpoints, so it is constant inside).
     """
     p_mech, network = scenario.network(t, plant)
-    return np.array(_rk4_swing(*_components(x), h, battery_power_pu, plant, p_mech, network, acceleration_of(plant)))
+    delta, speed = _components(x)
+    return np.array(_rk4_swing(delta, speed, h, held_acceleration(plant, p_mech, network, battery_power_pu, delta)))
 
 
 def _components(x) -> tuple:
@@ -68,7 +69,7 @@ def _components(x) -> tuple:
     return (float(x[0]), float(x[1])) if x.ndim == 1 else (x[0], x[1])
 
 
-def _rk4_swing(delta, speed, h, battery_power_pu, plant, p_mech, network, acceleration) -> tuple:
+def _rk4_swing(delta, speed, h, acceleration) -> tuple:
     """:func:`rk4` of :func:`~nni_plant_sim.model.plant_rate` written out: the same sums in the same order.
 
     The plant's path, the node's (20 to 50 steps a sample, on floats) and the
@@ -76,15 +77,15 @@ def _rk4_swing(delta, speed, h, battery_power_pu, plant, p_mech, network, accele
     than the arithmetic on two floats (2.5x, timings in the notes on issue 12)
     and some 5 % on a network batch. Stage k_i = (k_i delta, k_i speed) = (speed
     at the stage, acceleration at the stage), as plant_rate gives them;
-    ``acceleration`` is :func:`~nni_plant_sim.model.acceleration_of` the plant.
+    ``acceleration(delta, speed)`` is :func:`~nni_plant_sim.model.held_acceleration`.
     """
-    k1_delta, k1_speed = speed, acceleration(delta, speed, battery_power_pu, plant, p_mech, network)
+    k1_delta, k1_speed = speed, acceleration(delta, speed)
     k2_delta = speed + 0.5 * h * k1_speed
-    k2_speed = acceleration(delta + 0.5 * h * k1_delta, k2_delta, battery_power_pu, plant, p_mech, network)
+    k2_speed = acceleration(delta + 0.5 * h * k1_delta, k2_delta)
     k3_delta = speed + 0.5 * h * k2_speed
-    k3_speed = acceleration(delta + 0.5 * h * k2_delta, k3_delta, battery_power_pu, plant, p_mech, network)
+    k3_speed = acceleration(delta + 0.5 * h * k2_delta, k3_delta)
     k4_delta = speed + h * k3_speed
-    k4_speed = acceleration(delta + h * k3_delta, k4_delta, battery_power_pu, plant, p_mech, network)
+    k4_speed = acceleration(delta + h * k3_delta, k4_delta)
     return (delta + (h / 6.0) * (k1_delta + 2.0 * k2_delta + 2.0 * k3_delta + k4_delta),
             speed + (h / 6.0) * (k1_speed + 2.0 * k2_speed + 2.0 * k3_speed + k4_speed))
 
@@ -115,11 +116,15 @@ def advance(
     cuts = [t0_s, *(tb for tb in scenario.breakpoints() if t0_s < tb < t1_s), t1_s]
     delta, speed = _components(x)
     power = float(battery_power_pu) if np.ndim(battery_power_pu) == 0 else battery_power_pu
-    acceleration = acceleration_of(plant)
     for start, stop in zip(cuts[:-1], cuts[1:]):
         steps = max(1, math.ceil((stop - start) / max_step_s - 1e-9))
         h = (stop - start) / steps
         p_mech, network = scenario.network(start, plant)
+        acceleration = held_acceleration(plant, p_mech, network, power, delta)
         for _ in range(steps):
-            delta, speed = _rk4_swing(delta, speed, h, power, plant, p_mech, network, acceleration)
+            try:
+                delta, speed = _rk4_swing(delta, speed, h, acceleration)
+            except ValueError:  # the float form's math.sin at an infinite angle: numpy's NaN, as everywhere else
+                acceleration = held_acceleration(plant, p_mech, network, power, None)
+                delta, speed = _rk4_swing(delta, speed, h, acceleration)
     return np.array((delta, speed))
