@@ -145,10 +145,10 @@ class ControllerCore:
 
     @staticmethod
     def warm_up(config) -> Answer:
-        """One answer of a throwaway core: the node builds its messages once, publishing nothing.
+        """One answer of a throwaway core: the node packs its messages once, publishing nothing.
 
-        Profiled: the first pass costs ~5 ms (first JointState, numpy's first calls), which sample 0
-        would otherwise pay as latency (above 200/s, as a deadline miss).
+        Profiled: the first pass costs ~5 ms (numpy's first calls; the first JointState: contract.warm_up),
+        which sample 0 would otherwise pay as latency (above 200/s, as a deadline miss).
         """
         return ControllerCore(config).measurement(0, config.reference_rad, 0.0, 0, 0, config.p_mech_pu)
 

@@ -25,8 +25,9 @@ class ControllerNode(Node):
         config = ControllerConfig(declared_values(self, parameters()), self.get_namespace())
         self._core, self._clock_ns = ControllerCore(config), None
         self._clock = self.get_clock()
+        self._command_bytes, self._state_bytes = contract.command_bytes(), contract.controller_state_bytes()
         warm = ControllerCore.warm_up(config)
-        contract.command_message(0, warm.power_pu), contract.controller_state_message(*warm.signals())
+        self._command_bytes.pack(0, warm.power_pu), self._state_bytes.pack(*warm.signals()), contract.warm_up()
         self._command_pub, self._state_pub, self._diag_pub = contract.publishers(
             self, contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE, contract.TOPIC_DIAGNOSTICS)
         self._pmu_subs = [contract.subscribe(self, contract.TOPIC_PMU, lambda msg, i=i: self._on_pmu(i, msg), ns)
@@ -53,9 +54,9 @@ class ControllerNode(Node):
         answer = self._core.receive(index, reading, msg.effort, self._pmu_subs[index].get_publisher_count(),
                                     arrival_ns, self._clock_ns, self._clock_sub.get_publisher_count)
         if answer is not None:
-            self._command_pub.publish(contract.command_message(answer.stamp_ns, answer.power_pu))
+            self._command_pub.publish(self._command_bytes.pack(answer.stamp_ns, answer.power_pu))
             self._stale_timer.reset()  # bookkeeping after the answer is out: none of it changes the command
-            self._state_pub.publish(contract.controller_state_message(*answer.signals()))
+            self._state_pub.publish(self._state_bytes.pack(*answer.signals()))
 
     def _on_diagnostics(self, msg) -> None:
         if contract.plant_run_ended(msg, self.get_namespace()) and self._core.end_of_run():
@@ -65,7 +66,7 @@ class ControllerNode(Node):
     def _check_stale(self) -> None:
         stamp_ns = self._core.silence(contract.now_ns(self._clock), self._clock_sub.get_publisher_count() > 0)
         if stamp_ns is not None:
-            self._command_pub.publish(contract.command_message(stamp_ns, 0.0))
+            self._command_pub.publish(self._command_bytes.pack(stamp_ns, 0.0))
             self.get_logger().warning(f"no measurement for {self._core.config.stale_after_s:g} s: battery power set to zero")
 
     def _publish_diagnostics(self) -> None:

@@ -30,7 +30,6 @@ import math
 
 from rclpy.node import Node
 from rclpy.task import Future
-from rosgraph_msgs.msg import Clock
 from std_srvs.srv import Trigger
 
 from nni_msgs_adapter.ros import contract
@@ -61,16 +60,15 @@ class PlantNodeBase(Node):
         self._writer_counts = [-1] * len(self.namespaces)
         self._pmu_pubs = [self.create_publisher(*self._endpoint(ns, contract.TOPIC_PMU)) for ns in self.namespaces]
         self._state_pubs = [self.create_publisher(*self._endpoint(ns, contract.TOPIC_PLANT_STATE)) for ns in self.namespaces]
-        # One message per topic, refilled for every sample (contract.refill_rotor_message).
-        self._pmu_msgs = [contract.pmu_message(0, 0.0, 0.0, 0.0) for _ in self.namespaces]
-        self._state_msgs = [contract.plant_state_message(0, 0.0, 0.0, 0.0) for _ in self.namespaces]
+        # The per-sample messages go out as their bytes (contract.rotor_bytes, contract.clock_bytes).
+        self._rotor_bytes, self._clock_bytes = contract.rotor_bytes(), contract.clock_bytes()
         self._diag_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_DIAGNOSTICS))
         self._clock_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_CLOCK)) if self._lockstep else None
         self._command_subs = [self._subscribe(i, ns) for i, ns in enumerate(self.namespaces)]
         self.create_service(Trigger, contract.SERVICE_START_FAULT, self._on_start_fault)
         # Warm the sample path once, publishing nothing. Profiled: the first pass costs ~5 ms (the first
-        # JointState construction, done above for the messages, and numpy's first calls), which sample 0
-        # would otherwise pay as latency.
+        # JointState, numpy's first calls), which sample 0 would otherwise pay as latency.
+        contract.warm_up()
         self._integrate(0.0, 1.0 / values["pmu_rate_hz"], self._state_of(self._fault), (0.0,) * len(self.namespaces))
         self._start_timer = self.create_timer(0.01, self._try_start)
         self._run_timers = [self.create_timer(1.0, self._publish_diagnostics)]
@@ -167,15 +165,15 @@ class PlantNodeBase(Node):
             return
         sample = output.measurement
         if sample is not None:
-            for pub, msg, frame in zip(self._pmu_pubs, self._pmu_msgs, self._frames(sample)):
-                pub.publish(contract.refill_rotor_message(msg, sample.stamp_ns, *frame))
+            for pub, frame in zip(self._pmu_pubs, self._frames(sample)):
+                pub.publish(self._rotor_bytes.pack(sample.stamp_ns, *frame))
             if self._lockstep:  # /clock after the measurement: the controller answers before it reads the clock
                 self._loop.sent(self._now_ns())
-                self._clock_pub.publish(Clock(clock=contract.time_from_ns(sample.stamp_ns)))
+                self._clock_pub.publish(self._clock_bytes.pack(sample.stamp_ns))
         for report in output.states:
             deltas, speeds = report.state.reshape(2, -1).tolist()
-            for pub, msg, delta, speed, power in zip(self._state_pubs, self._state_msgs, deltas, speeds, report.powers):
-                pub.publish(contract.refill_rotor_message(msg, report.stamp_ns, delta, speed, power))
+            for pub, delta, speed, power in zip(self._state_pubs, deltas, speeds, report.powers):
+                pub.publish(self._rotor_bytes.pack(report.stamp_ns, delta, speed, power))
         if output.done:
             for timer in self._run_timers:
                 timer.cancel()

@@ -1,0 +1,116 @@
+"""The loop's per-sample messages as bytes (nni_msgs_adapter.ros.cdr) are what a normal publish puts on the wire.
+
+The oracle is Fast DDS itself: each message is published once by rclpy as a
+message and once as our bytes, on real DDS in this process, and a raw
+subscription receives both. They must be equal byte for byte (padding
+included: a recording of either is the same file), for the contract's layouts
+and for odd ones (empty strings and sequences, lengths off the alignments),
+with edge values.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+
+from nni_msgs_adapter.ros import cdr, contract
+from rosproc import fresh_domain_id
+
+STAMPS_NS = (0, 1_764_597_600_123_456_789, 2_147_483_647_999_999_999, -1)
+VALUES = (0.25, -3.5, math.nan, math.inf, -math.inf, -0.0, 1e300, 5e-324, 1.0, 7.0)
+
+LAYOUTS = [  # (frame_id, names, (position, velocity, effort) counts)
+    ("generator", (contract.ROTOR_JOINT,), (1, 1, 1)),  # pmu and plant/state
+    ("battery", (contract.BATTERY_JOINT,), (0, 0, 1)),  # battery/command
+    ("controller", contract.CONTROLLER_SIGNALS, (7, 0, 0)),  # controller/state
+    ("", (), (0, 0, 0)),
+    ("ab", ("x", "yyyy", "zzzzzzz", ""), (2, 3, 0)),
+    ("a" * 9, ("q",), (0, 1, 2)),
+    ("abc", ("rotor", "battery"), (3, 0, 0)),
+]
+
+
+@pytest.fixture(scope="module")
+def wire():
+    """``send(msg_class, msg, data) -> (bytes of msg, bytes of data)`` as a raw reader received them."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    context = Context()
+    rclpy.init(context=context, domain_id=fresh_domain_id())
+    node = rclpy.create_node("cdr_oracle", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    topics = iter(range(1000))
+
+    def send(msg_class, msg, data):
+        name, received = f"/cdr_test_{next(topics)}", []
+        qos = contract.SAMPLE_QOS
+        subscription = node.create_subscription(msg_class, name, received.append, qos, raw=True)
+        publisher = node.create_publisher(msg_class, name, qos)
+        deadline = time.monotonic() + 10.0
+        while publisher.get_subscription_count() < 1 and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.01)
+        publisher.publish(msg)
+        publisher.publish(data)
+        while len(received) < 2 and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.01)
+        node.destroy_publisher(publisher)
+        node.destroy_subscription(subscription)
+        assert len(received) == 2, f"{name}: {len(received)} of 2 messages arrived within 10 s"
+        return received[0], received[1]
+
+    yield send
+    executor.shutdown(timeout_sec=1.0)
+    node.destroy_node()
+    rclpy.try_shutdown(context=context)
+
+
+@pytest.mark.parametrize("frame_id, names, counts", LAYOUTS)
+def test_a_joint_states_bytes_are_what_a_normal_publish_sends(wire, frame_id, names, counts):
+    from sensor_msgs.msg import JointState
+
+    layout = cdr.joint_state(frame_id, names, counts)
+    assert layout.count == sum(counts)
+    for index, stamp_ns in enumerate(STAMPS_NS):
+        values = [VALUES[(index + k) % len(VALUES)] for k in range(sum(counts))]
+        position, velocity, effort = values[:counts[0]], values[counts[0]:sum(counts[:2])], values[sum(counts[:2]):]
+        msg = JointState(name=list(names), position=position, velocity=velocity, effort=effort)
+        msg.header.stamp, msg.header.frame_id = contract.time_from_ns(stamp_ns), frame_id
+        normal, ours = wire(JointState, msg, layout.pack(stamp_ns, *values))
+        assert ours == normal
+
+
+def test_a_clocks_bytes_are_what_a_normal_publish_sends(wire):
+    from rosgraph_msgs.msg import Clock
+
+    layout = cdr.clock()
+    for stamp_ns in STAMPS_NS:
+        normal, ours = wire(Clock, Clock(clock=contract.time_from_ns(stamp_ns)), layout.pack(stamp_ns))
+        assert ours == normal
+
+
+CONTRACT = [  # (the message builder, the bytes the nodes publish instead, arguments after the stamp)
+    (contract.pmu_message, contract.rotor_bytes, (0.2, -1.5, 0.75)),
+    (contract.plant_state_message, contract.rotor_bytes, (math.nan, math.inf, -0.0)),
+    (contract.command_message, contract.command_bytes, (0.3,)),
+    (contract.controller_state_message, contract.controller_state_bytes, (0.1, -0.2, 0.3, 0.3, True, 0.05, math.inf)),
+    (contract.controller_state_message, contract.controller_state_bytes, (0.1, -0.2, 0.3, 0.3, False, math.nan, 1.0)),
+]
+
+
+@pytest.mark.parametrize("build, layout, values", CONTRACT)
+def test_the_contracts_bytes_are_its_messages(wire, build, layout, values):
+    """What the plant and the controller publish as bytes is what the contract's builder gives, on the wire."""
+    for stamp_ns in STAMPS_NS[:3]:
+        msg = build(stamp_ns, *values)
+        normal, ours = wire(type(msg), msg, layout().pack(stamp_ns, *values))
+        assert ours == normal
+
+
+def test_a_wrong_number_of_values_is_refused():
+    with pytest.raises(TypeError, match="3 values expected, got 2"):
+        cdr.joint_state("generator", ("rotor",), (1, 1, 1)).pack(0, 1.0, 2.0)
