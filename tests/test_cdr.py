@@ -114,3 +114,37 @@ def test_the_contracts_bytes_are_its_messages(wire, build, layout, values):
 def test_a_wrong_number_of_values_is_refused():
     with pytest.raises(TypeError, match="3 values expected, got 2"):
         cdr.joint_state("generator", ("rotor",), (1, 1, 1)).pack(0, 1.0, 2.0)
+
+
+def test_the_peers_bytes_read_back_in_place_and_any_other_message_through_rclpy():
+    """pmu_from_bytes / command_from_bytes: the peer's layout read in place, other valid messages as rclpy reads them."""
+    from rclpy.serialization import serialize_message
+
+    pmu = contract.rotor_bytes().pack(7_000_000_001, 0.2, -1.5, 0.75)
+    assert contract.pmu_from_bytes(pmu) == ((7_000_000_001, 0.2, -1.5), (0.75,))
+    assert contract.command_from_bytes(contract.command_bytes().pack(7_000_000_001, -0.3)) == (7_000_000_001, -0.3)
+    # Not the peer's layout but valid: another frame_id, rclpy's own (over-long) serialisation, more efforts.
+    other = cdr.joint_state("elsewhere", (contract.BATTERY_JOINT,), (0, 0, 1)).pack(5, 0.25)
+    assert contract.command_from_bytes(other) == (5, 0.25)
+    assert contract.command_from_bytes(serialize_message(contract.command_message(9, 0.5))) == (9, 0.5)
+    two = cdr.joint_state("generator", (contract.ROTOR_JOINT,), (1, 1, 2)).pack(3, 0.1, 0.2, 0.3, 0.4)
+    assert contract.pmu_from_bytes(two) == ((3, 0.1, 0.2), (0.3, 0.4))
+
+
+@pytest.mark.parametrize("data", [
+    b"", b"\x00\x01\x00\x00", contract.command_bytes().pack(1, 0.5)[:-3], bytes(range(60)),
+    contract.rotor_bytes().pack(1, 0.1, 0.2, 0.3),  # a measurement on the command topic
+    cdr.joint_state("battery", ("battery",), (0, 0, 2)).pack(1, 0.5, 0.5),  # two efforts
+])
+def test_bytes_that_are_no_command_are_a_contract_error(data):
+    with pytest.raises(contract.ContractError):
+        contract.command_from_bytes(data)
+
+
+@pytest.mark.parametrize("data", [
+    b"", contract.rotor_bytes().pack(1, 0.1, 0.2, 0.3)[:40],
+    contract.command_bytes().pack(1, 0.5),  # a command on the measurement topic
+])
+def test_bytes_that_are_no_measurement_are_a_contract_error(data):
+    with pytest.raises(contract.ContractError):
+        contract.pmu_from_bytes(data)

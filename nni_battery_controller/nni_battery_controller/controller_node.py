@@ -30,8 +30,8 @@ class ControllerNode(Node):
         self._command_bytes.pack(0, warm.power_pu), self._state_bytes.pack(*warm.signals()), contract.warm_up()
         self._command_pub, self._state_pub, self._diag_pub = contract.publishers(
             self, contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE, contract.TOPIC_DIAGNOSTICS)
-        self._pmu_subs = [contract.subscribe(self, contract.TOPIC_PMU, lambda msg, i=i: self._on_pmu(i, msg), ns)
-                          for i, ns in enumerate(config.pmu_namespaces)]
+        self._pmu_subs = [contract.subscribe(self, contract.TOPIC_PMU, lambda data, i=i: self._on_pmu(i, data), ns,
+                                             raw=True) for i, ns in enumerate(config.pmu_namespaces)]
         self._clock_sub = contract.subscribe(self, contract.TOPIC_CLOCK,
                                              lambda msg: setattr(self, "_clock_ns", contract.ns_from_time(msg.clock)))
         contract.subscribe(self, contract.TOPIC_DIAGNOSTICS, self._on_diagnostics)
@@ -45,13 +45,13 @@ class ControllerNode(Node):
         self._core.reconfigure(config)
         self._stale_timer.timer_period_ns = config.gate_bounds[0]
 
-    def _on_pmu(self, index: int, msg) -> None:
+    def _on_pmu(self, index: int, data: bytes) -> None:
         arrival_ns = contract.now_ns(self._clock)
         try:
-            reading = contract.pmu_from_message(msg)
+            reading, effort = contract.pmu_from_bytes(data)
         except contract.ContractError:
-            reading = None
-        answer = self._core.receive(index, reading, msg.effort, self._pmu_subs[index].get_publisher_count(),
+            reading, effort = None, ()
+        answer = self._core.receive(index, reading, effort, self._pmu_subs[index].get_publisher_count(),
                                     arrival_ns, self._clock_ns, self._clock_sub.get_publisher_count)
         if answer is not None:
             self._command_pub.publish(self._command_bytes.pack(answer.stamp_ns, answer.power_pu))

@@ -81,7 +81,7 @@ class PlantNodeBase(Node):
 
     def _subscribe(self, index: int, namespace: str):
         msg_class, name, qos = self._endpoint(namespace, contract.TOPIC_BATTERY_COMMAND)
-        return self.create_subscription(msg_class, name, lambda msg: self._on_command(index, msg), qos)
+        return self.create_subscription(msg_class, name, lambda data: self._on_command(index, data), qos, raw=True)
 
     def _now_ns(self) -> int:
         return contract.now_ns(self._clock)
@@ -213,13 +213,13 @@ class PlantNodeBase(Node):
             if alarm:
                 self._publish_diagnostics()
 
-    def _on_command(self, index: int, msg) -> None:
+    def _on_command(self, index: int, data: bytes) -> None:
         arrival_ns = self._now_ns()
         if self._loop is None:
             return
         self._check_writers(index)
         try:
-            stamp_ns, power = contract.command_from_message(msg)
+            stamp_ns, power = contract.command_from_bytes(data)
         except contract.ContractError:
             stamp_ns, power = 0, math.nan  # malformed: invalid, as a non-finite power is
         self._publish(self._loop.command(index, stamp_ns, power, arrival_ns)[1])

@@ -71,6 +71,14 @@ class StampedBytes:
     def __init__(self, writer: _Writer, stamp_offset: int, groups: list[tuple[int, struct.Struct]]):
         self._buffer, self._stamp_offset, self._groups = writer.out, stamp_offset, tuple(groups)
         self.count = sum(group.size // 8 for _, group in self._groups)
+        # What :meth:`unpack` compares: every byte but the stamp's and the values', as (start, stop, bytes).
+        slots = sorted([(stamp_offset, stamp_offset + _STAMP.size)]
+                       + [(offset, offset + group.size) for offset, group in self._groups])
+        edges = [0, *(edge for slot in slots for edge in slot), len(self._buffer)]
+        template = bytes(self._buffer)
+        self._fixed = tuple((start, stop, template[start:stop]) for start, stop in zip(edges[::2], edges[1::2])
+                            if stop > start)
+        self._size = len(template)
 
     def pack(self, stamp_ns: int, *values) -> bytes:
         if len(values) != self.count:
@@ -82,6 +90,21 @@ class StampedBytes:
             group.pack_into(buffer, offset, *values[start:stop])
             start = stop
         return bytes(buffer)
+
+
+    def unpack(self, data: bytes) -> tuple[int, tuple] | None:
+        """``(stamp_ns, values)`` of bytes of this layout, as :meth:`pack` writes them; None for any other bytes.
+
+        Other bytes may still be a valid message (another encoding, frame_id, size or
+        padding): the caller deserialises those (:func:`nni_msgs_adapter.ros.contract.command_from_bytes`).
+        """
+        if len(data) != self._size or any(data[start:stop] != fixed for start, stop, fixed in self._fixed):
+            return None
+        sec, nanosec = _STAMP.unpack_from(data, self._stamp_offset)
+        values = ()
+        for offset, group in self._groups:
+            values += group.unpack_from(data, offset)
+        return sec * 1_000_000_000 + nanosec, values
 
 
 def joint_state(frame_id: str, names: Sequence[str], counts: tuple[int, int, int]) -> StampedBytes:

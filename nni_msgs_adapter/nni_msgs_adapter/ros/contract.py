@@ -42,6 +42,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point32, PolygonStamped
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
@@ -136,10 +137,13 @@ def publishers(node, *topics) -> list:
     return [node.create_publisher(*endpoint(topic)) for topic in topics]
 
 
-def subscribe(node, topic: str, callback, namespace: str = ""):
-    """A subscription of ``node`` to a contract topic, with the contract's QoS; under ``namespace`` if given."""
+def subscribe(node, topic: str, callback, namespace: str = "", raw: bool = False):
+    """A subscription of ``node`` to a contract topic, with the contract's QoS; under ``namespace`` if given.
+
+    ``raw``: the callback gets the message's CDR bytes (for :func:`pmu_from_bytes`, :func:`command_from_bytes`).
+    """
     msg_class, name, qos = endpoint(topic)
-    return node.create_subscription(msg_class, f"{namespace}/{name}" if namespace else name, callback, qos)
+    return node.create_subscription(msg_class, f"{namespace}/{name}" if namespace else name, callback, qos, raw=raw)
 
 
 class ContractError(ValueError):
@@ -239,13 +243,51 @@ def command_from_message(msg: JointState) -> tuple[int, float]:
     return ns_from_time(msg.header.stamp), msg.effort[0]
 
 
+#: The layouts the loop's nodes publish, to read back without building a message (:meth:`cdr.StampedBytes.unpack`).
+_ROTOR_LAYOUT, _COMMAND_LAYOUT = rotor_bytes(), command_bytes()
+
+
+def _deserialised(data: bytes, msg_class):
+    try:
+        return deserialize_message(data, msg_class)
+    except Exception as error:  # rclpy raises its RMWError for bytes that are no such message
+        raise ContractError(f"not a {msg_class.__name__}: {error}") from None
+
+
+def pmu_from_bytes(data: bytes) -> tuple[tuple[int, float, float], tuple]:
+    """``(pmu_from_message's reading, the efforts)`` of a measurement received as bytes; ContractError if malformed.
+
+    The plant's own layout (:func:`rotor_bytes`) is read in place (measured: 1.8 us against 17 us for
+    rclpy's deserialisation, on the controller's path at every sample); any other bytes are
+    deserialised by rclpy and judged as a message.
+    """
+    fast = _ROTOR_LAYOUT.unpack(data)
+    if fast is not None:
+        stamp_ns, (delta, speed, p_elec) = fast
+        return (stamp_ns, delta, speed), (p_elec,)
+    msg = _deserialised(data, JointState)
+    return pmu_from_message(msg), tuple(msg.effort)
+
+
+def command_from_bytes(data: bytes) -> tuple[int, float]:
+    """:func:`command_from_message` of a command received as bytes; ContractError if malformed.
+
+    As :func:`pmu_from_bytes`: the controller's layout (:func:`command_bytes`) in place, else rclpy.
+    """
+    fast = _COMMAND_LAYOUT.unpack(data)
+    if fast is not None:
+        return fast[0], fast[1][0]
+    return command_from_message(_deserialised(data, JointState))
+
+
 def warm_up() -> None:
-    """Build and read a measurement and a command, publishing nothing.
+    """Build and read a measurement and a command, as messages and as bytes, publishing nothing.
 
     Profiled: a process's first JointState costs ~5 ms, which its first sample would otherwise
-    pay as latency (the nodes receive messages as JointStates and send bytes).
+    pay as latency (the nodes read bytes, and deserialise what is not their peer's layout).
     """
     pmu_from_message(pmu_message(0, 0.0, 0.0, 0.0)), command_from_message(command_message(0, 0.0))
+    pmu_from_bytes(_ROTOR_LAYOUT.pack(0, 0.0, 0.0, 0.0)), command_from_bytes(_COMMAND_LAYOUT.pack(0, 0.0))
 
 
 def plant_state_message(stamp_ns: int, delta_rad: float, speed_rad_s: float, battery_power_pu: float) -> JointState:
