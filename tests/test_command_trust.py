@@ -35,7 +35,7 @@ class Rogue(Probe):
     """A node called ``rogue`` on ``domain_id``, publishing on the contract's topics (a publisher made on first use).
 
     ``answer``: a topic (``pmu`` or ``/clock``) whose every message it answers at
-    once on battery/command with the message's stamp and the next of ``powers_pu``.
+    once on battery/command with the message's stamp and the next of ``powers_pu`` (bytes: sent as they are).
     """
 
     def __init__(self, domain_id: int, answer: str | None = None, powers_pu=(5.0,)):
@@ -54,8 +54,9 @@ class Rogue(Probe):
     def _answer(self, topic, powers_pu):
         def callback(msg):
             stamp = msg.clock if topic == contract.TOPIC_CLOCK else msg.header.stamp
-            power = powers_pu[self.answered % len(powers_pu)]
-            self.publish(contract.TOPIC_BATTERY_COMMAND, contract.command_message(contract.ns_from_time(stamp), power))
+            power = powers_pu[self.answered % len(powers_pu)]  # bytes: published as they are
+            self.publish(contract.TOPIC_BATTERY_COMMAND, power if isinstance(power, bytes) else
+                         contract.command_message(contract.ns_from_time(stamp), power))
             self.answered += 1
         return callback
 
@@ -205,6 +206,30 @@ def test_attack_5_an_absurd_command_from_the_paired_writer_is_dropped_and_the_ra
     final = summary_of(plant)
     assert final["invalid_commands"] >= 10 and final["clipped_commands"] >= 10
     assert final["max_abs_applied_power_pu"] == 1.0
+
+
+def test_bytes_that_are_no_command_are_counted_invalid_and_the_run_goes_on(tmp_path):
+    """The plant reads commands as bytes: garbage on battery/command is dropped and counted, never a crash.
+
+    The rogue is the only writer and answers every measurement, alternately with bytes that are
+    no JointState and with a valid 0.2 pu command: the run completes, the valid ones are applied.
+    """
+    domain = fresh_domain_id()
+    garbage = (b"\x00\x01\x00\x00" + bytes(range(40)), b"\x00", b"\xff" * 7)
+    with node_processes(tmp_path, domain) as start:
+        probe = Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_PMU))
+        rogue = Rogue(domain, answer=contract.TOPIC_PMU, powers_pu=(garbage[0], 0.2, garbage[1], 0.2, garbage[2], 0.2))
+        try:
+            plant = start("plant", PLANT, {"mode": "lockstep", "duration_s": 1.0, "wait_for_subscribers": 2,
+                                           "lockstep_timeout_s": 0.05})
+            assert plant.wait(timeout=60.0) == 0
+        finally:
+            rogue.close()
+            probe.close()
+    assert "Traceback" not in plant.output()
+    final = summary_of(plant)
+    assert final["invalid_commands"] >= 10 and final["sim_time_s"] == pytest.approx(1.0)
+    assert 0.2 in applied_powers(probe)
 
 
 def test_attack_6_safety_parameters_are_locked_during_a_run_and_gains_stay_tunable(tmp_path):
