@@ -187,12 +187,15 @@ def test_attack_4_one_far_future_measurement_does_not_lock_the_controller_out(tm
     assert int(counts["implausible_stamp"]) == 1 and int(counts["out_of_order"]) == 0
 
 
-def test_attack_5_an_absurd_command_from_the_paired_writer_is_dropped_and_the_rating_holds(tmp_path):
-    """The rogue is the only writer (no controller): it is paired, and still cannot break the physics."""
+def lone_rogue_run(tmp_path, powers_pu):
+    """A 1 s lockstep run of the plant whose only writer on battery/command is a rogue answering with ``powers_pu``.
+
+    Returns the plant (ended, exit 0) and the probe that recorded its states.
+    """
     domain = fresh_domain_id()
     with node_processes(tmp_path, domain) as start:
         probe = Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_PMU))
-        rogue = Rogue(domain, answer=contract.TOPIC_PMU, powers_pu=(1e308, 5.0))
+        rogue = Rogue(domain, answer=contract.TOPIC_PMU, powers_pu=powers_pu)
         try:
             plant = start("plant", PLANT, {"mode": "lockstep", "duration_s": 1.0, "wait_for_subscribers": 2,
                                            "lockstep_timeout_s": 0.05})
@@ -200,6 +203,12 @@ def test_attack_5_an_absurd_command_from_the_paired_writer_is_dropped_and_the_ra
         finally:
             rogue.close()
             probe.close()
+    return plant, probe
+
+
+def test_attack_5_an_absurd_command_from_the_paired_writer_is_dropped_and_the_rating_holds(tmp_path):
+    """The rogue is the only writer (no controller): it is paired, and still cannot break the physics."""
+    plant, probe = lone_rogue_run(tmp_path, (1e308, 5.0))
     states = [contract.plant_state_from_message(m) for m in probe.take(contract.TOPIC_PLANT_STATE)]
     assert states and all(math.isfinite(v) for state in states for v in state[1:]), "every state finite"
     assert max(abs(state[3]) for state in states) <= 1.0, "never beyond the plant's rating (1 pu)"
@@ -214,18 +223,8 @@ def test_bytes_that_are_no_command_are_counted_invalid_and_the_run_goes_on(tmp_p
     The rogue is the only writer and answers every measurement, alternately with bytes that are
     no JointState and with a valid 0.2 pu command: the run completes, the valid ones are applied.
     """
-    domain = fresh_domain_id()
     garbage = (b"\x00\x01\x00\x00" + bytes(range(40)), b"\x00", b"\xff" * 7)
-    with node_processes(tmp_path, domain) as start:
-        probe = Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_PMU))
-        rogue = Rogue(domain, answer=contract.TOPIC_PMU, powers_pu=(garbage[0], 0.2, garbage[1], 0.2, garbage[2], 0.2))
-        try:
-            plant = start("plant", PLANT, {"mode": "lockstep", "duration_s": 1.0, "wait_for_subscribers": 2,
-                                           "lockstep_timeout_s": 0.05})
-            assert plant.wait(timeout=60.0) == 0
-        finally:
-            rogue.close()
-            probe.close()
+    plant, probe = lone_rogue_run(tmp_path, (garbage[0], 0.2, garbage[1], 0.2, garbage[2], 0.2))
     assert "Traceback" not in plant.output()
     final = summary_of(plant)
     assert final["invalid_commands"] >= 10 and final["sim_time_s"] == pytest.approx(1.0)
