@@ -91,7 +91,6 @@ class StampedBytes:
             start = stop
         return bytes(buffer)
 
-
     def unpack(self, data: bytes) -> tuple[int, tuple] | None:
         """``(stamp_ns, values)`` of bytes of this layout, as :meth:`pack` writes them; None for any other bytes.
 
