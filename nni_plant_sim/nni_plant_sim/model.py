@@ -196,7 +196,7 @@ def held_acceleration(plant, p_mech_pu, network_in_force, battery_power_pu, delt
     a float: the plant node's path, 40 stages a sample) it is
     :func:`swing_acceleration` written out with the sum ``P_M + P_ST`` and the
     parameters bound once: the same operations in the same order, so bit for bit
-    the same result (tests/test_model.py), in one call a stage instead of two
+    the same result (tests/test_plant_model.py), in one call a stage instead of two
     (measured: a period's RK4 24 -> 10 us). That float form raises ValueError
     where ``math.sin`` does (delta infinite); :func:`acceleration_of`'s form gives NaN.
     """

@@ -78,7 +78,6 @@ class StampedBytes:
         template = bytes(self._buffer)
         self._fixed = tuple((start, stop, template[start:stop]) for start, stop in zip(edges[::2], edges[1::2])
                             if stop > start)
-        self._size = len(template)
 
     def pack(self, stamp_ns: int, *values) -> bytes:
         if len(values) != self.count:
@@ -97,7 +96,7 @@ class StampedBytes:
         Other bytes may still be a valid message (another encoding, frame_id, size or
         padding): the caller deserialises those (:func:`nni_msgs_adapter.ros.contract.command_from_bytes`).
         """
-        if len(data) != self._size or any(data[start:stop] != fixed for start, stop, fixed in self._fixed):
+        if len(data) != len(self._buffer) or any(data[start:stop] != fixed for start, stop, fixed in self._fixed):
             return None
         sec, nanosec = _STAMP.unpack_from(data, self._stamp_offset)
         values = ()
