@@ -14,6 +14,7 @@ import math
 import time
 
 import pytest
+from rosgraph_msgs.msg import Clock
 
 from nni_msgs_adapter.ros import cdr, contract
 from rosproc import fresh_domain_id
@@ -85,29 +86,28 @@ def test_a_joint_states_bytes_are_what_a_normal_publish_sends(wire, frame_id, na
 
 
 def test_a_clocks_bytes_are_what_a_normal_publish_sends(wire):
-    from rosgraph_msgs.msg import Clock
-
     layout = cdr.clock()
     for stamp_ns in STAMPS_NS:
         normal, ours = wire(Clock, Clock(clock=contract.time_from_ns(stamp_ns)), layout.pack(stamp_ns))
         assert ours == normal
 
 
-CONTRACT = [  # (the message builder, the bytes the nodes publish instead, arguments after the stamp)
-    (contract.pmu_message, contract.rotor_bytes, (0.2, -1.5, 0.75)),
-    (contract.plant_state_message, contract.rotor_bytes, (math.nan, math.inf, -0.0)),
-    (contract.command_message, contract.command_bytes, (0.3,)),
-    (contract.controller_state_message, contract.controller_state_bytes, (0.1, -0.2, 0.3, 0.3, True, 0.05, math.inf)),
-    (contract.controller_state_message, contract.controller_state_bytes, (0.1, -0.2, 0.3, 0.3, False, math.nan, 1.0)),
+CONTRACT = [  # (the message builder, the topic whose nodes publish bytes instead, arguments after the stamp)
+    (contract.pmu_message, contract.TOPIC_PMU, (0.2, -1.5, 0.75)),
+    (contract.plant_state_message, contract.TOPIC_PLANT_STATE, (math.nan, math.inf, -0.0)),
+    (contract.command_message, contract.TOPIC_BATTERY_COMMAND, (0.3,)),
+    (contract.controller_state_message, contract.TOPIC_CONTROLLER_STATE, (0.1, -0.2, 0.3, 0.3, True, 0.05, math.inf)),
+    (contract.controller_state_message, contract.TOPIC_CONTROLLER_STATE, (0.1, -0.2, 0.3, 0.3, False, math.nan, 1.0)),
+    (lambda stamp_ns: Clock(clock=contract.time_from_ns(stamp_ns)), contract.TOPIC_CLOCK, ()),
 ]
 
 
-@pytest.mark.parametrize("build, layout, values", CONTRACT)
-def test_the_contracts_bytes_are_its_messages(wire, build, layout, values):
-    """What the plant and the controller publish as bytes is what the contract's builder gives, on the wire."""
+@pytest.mark.parametrize("build, topic, values", CONTRACT)
+def test_the_contracts_bytes_are_its_messages(wire, build, topic, values):
+    """What the plant and the controller publish as bytes (the topic's layout) is the contract's message, on the wire."""
     for stamp_ns in STAMPS_NS[:3]:
         msg = build(stamp_ns, *values)
-        normal, ours = wire(type(msg), msg, layout().pack(stamp_ns, *values))
+        normal, ours = wire(type(msg), msg, contract.layout(topic).pack(stamp_ns, *values))
         assert ours == normal
 
 

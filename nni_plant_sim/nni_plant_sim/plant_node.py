@@ -32,7 +32,7 @@ class PlantNode(PlantNodeBase):
     def __init__(self, **kwargs):
         super().__init__("plant", parameters(), **kwargs)
         self.create_publisher(*contract.endpoint(contract.TOPIC_INVARIANT_SET)).publish(
-            contract.invariant_set_message(self._now_ns(), invariant_set_boundary(self._plant)))
+            contract.invariant_set_message(self.now_ns(), invariant_set_boundary(self._plant)))
 
     def _configure_plant(self, values: dict) -> None:
         self.namespaces, self._labels = ("",), ({},)

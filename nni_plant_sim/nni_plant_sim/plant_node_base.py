@@ -3,9 +3,10 @@
 The SMIB plant (:mod:`.plant_node`) is N = 1 in the node's own namespace
 (relative topics ``pmu``, ``plant/state``, ``battery/command``); the network
 plant (:mod:`.network_plant_node`) has generator i under ``/gen<i>``. This
-class translates between ROS and the cores for both: it declares and validates
-the parameters (:func:`.plant_config.run_parameters` and the node's own),
-waits for the subscribers (:class:`.reporting.SubscriberWait`), runs the
+class translates between ROS and the cores for both: its parameters
+(:func:`.plant_config.run_parameters` and the node's own) are declared,
+validated and applied as every loop node's
+(:class:`nni_msgs_adapter.ros.loop_node.LoopNode`); it waits for the subscribers (:class:`.reporting.SubscriberWait`), runs the
 reporting loop (:class:`.reporting.LockstepStepper` or
 :class:`.reporting.RealtimeReporter`), publishes what it returns (per
 generator its measurement, in lockstep then ``/clock``, then the true states),
@@ -28,63 +29,45 @@ from __future__ import annotations
 import json
 import math
 
-from rclpy.node import Node
 from rclpy.task import Future
 from std_srvs.srv import Trigger
 
 from nni_msgs_adapter.ros import contract
-from nni_msgs_adapter.ros.ros_params import declared_values, install_validation, locked_changes
+from nni_msgs_adapter.ros.loop_node import LoopNode, StampedPublisher
+from nni_msgs_adapter.ros.ros_params import locked_changes
 from nni_plant_sim.plant_config import link_from
 from nni_plant_sim.reporting import CommandChannel, LockstepStepper, PmuSensor, RealtimeReporter, SubscriberWait
 from nni_plant_sim.scenarios import StartingAt
 
 
-class PlantNodeBase(Node):
+class PlantNodeBase(LoopNode):
     """A plant of generators reporting like PMUs; ``summary_prefix`` starts its JSON line at exit."""
 
     summary_prefix = ""
 
     def __init__(self, node_name: str, specs, **kwargs):
-        super().__init__(node_name, **kwargs)
-        self._clock = self.get_clock()
-        self._specs = specs
-        values = declared_values(self, specs)
+        super().__init__(node_name, specs, **kwargs)
+        self._specs, values = specs, self.initial_values
         self._loop = None  # the reporting core, from the start of the run
         self._configure(values)
-        install_validation(self, specs, self._validate, self._install)
         self._lockstep, self.done = values["mode"] == "lockstep", Future()
         self._scenario = StartingAt(self._fault, math.inf, self._before)  # pre-fault until the fault starts
         self._wait = SubscriberWait(values["wait_for_subscribers"], values["discovery_settle_s"],
-                                    values["wait_timeout_s"], self._now_ns())
+                                    values["wait_timeout_s"], self.now_ns())
         self._t0_ns, self._finished_ns, self._gave_up = None, None, False
         self._writer_counts = [-1] * len(self.namespaces)
-        self._pmu_pubs = [self.create_publisher(*self._endpoint(ns, contract.TOPIC_PMU)) for ns in self.namespaces]
-        self._state_pubs = [self.create_publisher(*self._endpoint(ns, contract.TOPIC_PLANT_STATE)) for ns in self.namespaces]
-        # The per-sample messages go out as their bytes (contract.rotor_bytes, contract.clock_bytes).
-        self._rotor_bytes, self._clock_bytes = contract.rotor_bytes(), contract.clock_bytes()
-        self._diag_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_DIAGNOSTICS))
-        self._clock_pub = self.create_publisher(*contract.endpoint(contract.TOPIC_CLOCK)) if self._lockstep else None
-        self._command_subs = [self._subscribe(i, ns) for i, ns in enumerate(self.namespaces)]
+        self._pmu_pubs = [StampedPublisher(self, contract.TOPIC_PMU, ns) for ns in self.namespaces]
+        self._state_pubs = [StampedPublisher(self, contract.TOPIC_PLANT_STATE, ns) for ns in self.namespaces]
+        self._clock_pub = StampedPublisher(self, contract.TOPIC_CLOCK) if self._lockstep else None
+        self._command_subs = [contract.subscribe(self, contract.TOPIC_BATTERY_COMMAND,
+                                                 lambda data, i=i: self._on_command(i, data), ns, raw=True)
+                              for i, ns in enumerate(self.namespaces)]
         self.create_service(Trigger, contract.SERVICE_START_FAULT, self._on_start_fault)
-        # Warm the sample path once, publishing nothing. Profiled: the first pass costs ~5 ms (the first
-        # JointState, numpy's first calls), which sample 0 would otherwise pay as latency.
-        contract.warm_up()
+        # Warm the sample path once, publishing nothing. Profiled: the first pass costs ~5 ms (numpy's
+        # first calls), which sample 0 would otherwise pay as latency.
         self._integrate(0.0, 1.0 / values["pmu_rate_hz"], self._state_of(self._fault), (0.0,) * len(self.namespaces))
         self._start_timer = self.create_timer(0.01, self._try_start)
-        self._run_timers = [self.create_timer(1.0, self._publish_diagnostics)]
-
-    @staticmethod
-    def _endpoint(namespace: str, topic: str) -> tuple:
-        """``(message class, topic, QoS)`` of a contract topic in a generator's namespace (``""``: the node's own)."""
-        msg_class, name, qos = contract.endpoint(topic)
-        return msg_class, (f"/{namespace}/{name}" if namespace else name), qos
-
-    def _subscribe(self, index: int, namespace: str):
-        msg_class, name, qos = self._endpoint(namespace, contract.TOPIC_BATTERY_COMMAND)
-        return self.create_subscription(msg_class, name, lambda data: self._on_command(index, data), qos, raw=True)
-
-    def _now_ns(self) -> int:
-        return contract.now_ns(self._clock)
+        self._run_timers = [self.diagnostics_timer]
 
     # --- parameters ----------------------------------------------------------------------
 
@@ -111,11 +94,11 @@ class PlantNodeBase(Node):
     # --- start ---------------------------------------------------------------------------
 
     def _try_start(self) -> None:
-        readers = [pub.get_subscription_count() for pub in self._pmu_pubs]
+        readers = [pub.publisher.get_subscription_count() for pub in self._pmu_pubs]
         writers = [sub.get_publisher_count() for sub in self._command_subs]
         fewest, silent = readers.index(min(readers)), writers.index(min(writers))
-        state, level, text = self._wait.poll(self._now_ns(), readers[fewest], writers[silent],
-                                             self._pmu_pubs[fewest].topic_name, self._command_subs[silent].topic_name)
+        state, level, text = self._wait.poll(self.now_ns(), readers[fewest], writers[silent],
+                                             self._pmu_pubs[fewest].publisher.topic_name, self._command_subs[silent].topic_name)
         if text is not None:
             contract.log_at(self.get_logger(), level, text)
         self._gave_up = state == "give_up"
@@ -132,7 +115,7 @@ class PlantNodeBase(Node):
         self._run_timers.append(timer)
         # Realtime, the reporting grid is the timer's own, its period in whole ns and its phase, so that a
         # tick never comes before its instant and the two never drift apart (60 frames/s: 16,666,666 ns).
-        self._t0_ns = self._now_ns() + (0 if self._lockstep else timer.time_until_next_call() - timer.timer_period_ns)
+        self._t0_ns = self.now_ns() + (0 if self._lockstep else timer.time_until_next_call() - timer.timer_period_ns)
         state = self._state_of(self._before)
         link = link_from(values)
         self._loop = (LockstepStepper(self._integrate, state, self._channels, values["duration_s"],
@@ -141,7 +124,7 @@ class PlantNodeBase(Node):
                                             self._t0_ns, timer.timer_period_ns, values["command_timeout_s"], link))
         if values["fault_at_start"]:
             self._start_fault_now()
-        self._publish(self._loop.start(self._now_ns()))
+        self._publish(self._loop.start(self.now_ns()))
 
     def _start_fault_now(self) -> None:
         self._scenario = StartingAt(self._fault, self._loop.t_s, self._before)
@@ -150,7 +133,7 @@ class PlantNodeBase(Node):
     def _on_start_fault(self, request, response):
         response.success = self._loop is not None and self._scenario.start_s == math.inf
         if response.success:
-            self._publish(self._loop.interrupt(self._now_ns()))
+            self._publish(self._loop.interrupt(self.now_ns()))
             self._start_fault_now()
         response.message = (f"fault started at t = {self._loop.t_s:.6f} s" if response.success else
                             "the run has not started (waiting for subscribers)" if self._loop is None else
@@ -166,19 +149,19 @@ class PlantNodeBase(Node):
         sample = output.measurement
         if sample is not None:
             for pub, frame in zip(self._pmu_pubs, self._frames(sample)):
-                pub.publish(self._rotor_bytes.pack(sample.stamp_ns, *frame))
+                pub.publish(sample.stamp_ns, *frame)
             if self._lockstep:  # /clock after the measurement: the controller answers before it reads the clock
-                self._loop.sent(self._now_ns())
-                self._clock_pub.publish(self._clock_bytes.pack(sample.stamp_ns))
+                self._loop.sent(self.now_ns())
+                self._clock_pub.publish(sample.stamp_ns)
         for report in output.states:
             deltas, speeds = report.state.reshape(2, -1).tolist()
             for pub, delta, speed, power in zip(self._state_pubs, deltas, speeds, report.powers):
-                pub.publish(self._rotor_bytes.pack(report.stamp_ns, delta, speed, power))
+                pub.publish(report.stamp_ns, delta, speed, power)
         if output.done:
             for timer in self._run_timers:
                 timer.cancel()
-            self._finished_ns = self._now_ns()
-            self._publish_diagnostics()
+            self._finished_ns = self.now_ns()
+            self.publish_diagnostics()
             self.done.set_result(True)
 
     # --- timers and commands -------------------------------------------------------------
@@ -186,7 +169,7 @@ class PlantNodeBase(Node):
     def _on_timer(self) -> None:
         """Realtime: the reporting tick; lockstep: the watchdog of the handshake (zero for the silent at the timeout)."""
         self._check_writers()
-        self._publish(self._loop.on_timer(self._now_ns()))
+        self._publish(self._loop.on_timer(self.now_ns()))
 
     def _check_writers(self, only: int | None = None) -> None:
         """Tell each channel (or channel ``only``) who writes on its battery/command when that changed.
@@ -211,10 +194,10 @@ class PlantNodeBase(Node):
         for alarm, text in self._channels[index].take_events():
             contract.log_at(self.get_logger(), "error" if alarm else "info", f"/{ns}: {text}" if ns else text)
             if alarm:
-                self._publish_diagnostics()
+                self.publish_diagnostics()
 
     def _on_command(self, index: int, data: bytes) -> None:
-        arrival_ns = self._now_ns()
+        arrival_ns = self.now_ns()
         if self._loop is None:
             return
         self._check_writers(index)
@@ -232,20 +215,18 @@ class PlantNodeBase(Node):
         run = {"mode": self._values["mode"], "sim_time_s": 0.0, "samples": 0, "run_wall_s": 0.0}
         if self._loop is not None:
             run.update(sim_time_s=self._loop.t_s, samples=self._loop.sample,
-                       run_wall_s=((self._finished_ns or self._now_ns()) - self._t0_ns) * 1e-9)
+                       run_wall_s=((self._finished_ns or self.now_ns()) - self._t0_ns) * 1e-9)
         return [{**run, **label, "battery_power_pu": channel.power_pu, **channel.summary(),
                  **(self._loop.link_summary(i) if self._loop is not None else {}),
                  contract.RUN_ENDED: self._finished_ns is not None}
                 for i, (label, channel) in enumerate(zip(self._labels, self._channels))]
 
-    def _publish_diagnostics(self) -> list[dict]:
+    def publish_diagnostics(self) -> list[dict]:
         """One status per generator (``plant``, namespaced by its hardware_id); returns their values."""
         generators = self._generator_values()
         for ns, channel, values in zip(self.namespaces, self._channels, generators):
-            level, message = channel.health(self._loop is not None, self._wait.text)
-            self._diag_pub.publish(contract.diagnostics_message(
-                self._now_ns(), "plant", f"/{ns}/plant" if ns else self.get_fully_qualified_name(),
-                level, message, values))
+            self.publish_status("plant", *channel.health(self._loop is not None, self._wait.text), values,
+                                f"/{ns}/plant" if ns else "")
         return generators
 
     def close(self) -> None:
@@ -254,8 +235,8 @@ class PlantNodeBase(Node):
         The line holds the one generator's values in the node's own namespace, else ``{namespace: values}``.
         """
         if self._loop is not None and self._finished_ns is None:
-            self._finished_ns = self._now_ns()  # stopped: the run ends here, and its status says so
-        generators = self._publish_diagnostics()
+            self._finished_ns = self.now_ns()  # stopped: the run ends here, and its status says so
+        generators = self.publish_diagnostics()
         print(self.summary_prefix + json.dumps(generators[0] if self.namespaces == ("",) else
                                                dict(zip(self.namespaces, generators))), flush=True)
         if self._gave_up:

@@ -118,10 +118,14 @@ TOPICS = {
 
 
 
-def endpoint(topic: str) -> tuple:
-    """``(message class, topic, QoS)``: the arguments of create_publisher / create_subscription."""
+def endpoint(topic: str, namespace: str = "") -> tuple:
+    """``(message class, topic, QoS)``: the arguments of create_publisher / create_subscription.
+
+    ``namespace`` (``/gen1`` or ``gen1``; ``""``: the node's own) puts a relative topic under a
+    generator's namespace: ``/gen1/pmu``.
+    """
     _, msg_class, qos = TOPICS[topic]
-    return msg_class, topic, qos
+    return msg_class, (f"/{namespace.strip('/')}/{topic}" if namespace else topic), qos
 
 
 def recorder_endpoint(topic: str) -> tuple:
@@ -132,18 +136,13 @@ def recorder_endpoint(topic: str) -> tuple:
     return msg_class, name, deep
 
 
-def publishers(node, *topics) -> list:
-    """One publisher of ``node`` per contract topic, with the contract's QoS."""
-    return [node.create_publisher(*endpoint(topic)) for topic in topics]
-
-
 def subscribe(node, topic: str, callback, namespace: str = "", raw: bool = False):
     """A subscription of ``node`` to a contract topic, with the contract's QoS; under ``namespace`` if given.
 
     ``raw``: the callback gets the message's CDR bytes (for :func:`pmu_from_bytes`, :func:`command_from_bytes`).
     """
-    msg_class, name, qos = endpoint(topic)
-    return node.create_subscription(msg_class, f"{namespace}/{name}" if namespace else name, callback, qos, raw=raw)
+    msg_class, name, qos = endpoint(topic, namespace)
+    return node.create_subscription(msg_class, name, callback, qos, raw=raw)
 
 
 class ContractError(ValueError):
@@ -322,9 +321,14 @@ def controller_state_bytes() -> cdr.StampedBytes:
     return cdr.joint_state(CONTROLLER_FRAME, CONTROLLER_SIGNALS, (len(CONTROLLER_SIGNALS), 0, 0))
 
 
-def clock_bytes() -> cdr.StampedBytes:
-    """The bytes of rosgraph_msgs/Clock at a stamp: ``pack(stamp_ns)``."""
-    return cdr.clock()
+#: The per-sample topics' layouts (:func:`layout`).
+_LAYOUTS = {TOPIC_PMU: rotor_bytes, TOPIC_PLANT_STATE: rotor_bytes, TOPIC_BATTERY_COMMAND: command_bytes,
+            TOPIC_CONTROLLER_STATE: controller_state_bytes, TOPIC_CLOCK: cdr.clock}
+
+
+def layout(topic: str) -> cdr.StampedBytes:
+    """The bytes of a per-sample topic's messages as the loop's nodes publish them, in a buffer of its own."""
+    return _LAYOUTS[topic]()
 
 
 def controller_state_from_message(msg: JointState) -> tuple[int, dict]:

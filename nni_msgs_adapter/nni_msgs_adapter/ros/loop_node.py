@@ -1,0 +1,68 @@
+"""What the loop's nodes (the plants and the controller) do alike in ROS.
+
+:class:`LoopNode`: its parameter table declared and checked at start, each
+later change validated on set and applied after it
+(:func:`.ros_params.install_validation`); its status on ``/diagnostics`` every
+second and once more at close; the first messages' cost paid before the first
+sample (:func:`.contract.warm_up`). :class:`StampedPublisher`: a per-sample
+topic published as its exact bytes (:mod:`.cdr`).
+"""
+
+from __future__ import annotations
+
+from rclpy.node import Node
+
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros.ros_params import declared_values, install_validation
+
+
+class StampedPublisher:
+    """A publisher of a per-sample topic (under ``namespace`` if given): ``publish(stamp_ns, *values)`` sends its bytes."""
+
+    def __init__(self, node: Node, topic: str, namespace: str = ""):
+        self.layout = contract.layout(topic)
+        self.publisher = node.create_publisher(*contract.endpoint(topic, namespace))
+        self.layout.pack(0, *(0.0,) * self.layout.count)  # the first pack's cost, before the first sample
+
+    def publish(self, stamp_ns: int, *values) -> None:
+        self.publisher.publish(self.layout.pack(stamp_ns, *values))
+
+
+class LoopNode(Node):
+    """A node of the loop. ``initial_values``: its parameters at start (a ValueError names what cannot start).
+
+    A subclass gives :meth:`_validate` (the new full value dict -> what :meth:`_install`
+    applies; ValueError to reject the change) and :meth:`publish_diagnostics` (through
+    :meth:`publish_status`). Both are called only after its ``__init__``, from the executor.
+    """
+
+    def __init__(self, name: str, specs, **kwargs):
+        super().__init__(name, **kwargs)
+        self._clock = self.get_clock()
+        self.initial_values = declared_values(self, specs)
+        install_validation(self, specs, self._validate, self._install)
+        self._diagnostics = self.create_publisher(*contract.endpoint(contract.TOPIC_DIAGNOSTICS))
+        contract.warm_up()
+        self.diagnostics_timer = self.create_timer(1.0, self.publish_diagnostics)
+
+    def now_ns(self) -> int:
+        """The node's ROS clock in integer ns (:func:`.contract.now_ns`)."""
+        return contract.now_ns(self._clock)
+
+    def _validate(self, values: dict):
+        raise NotImplementedError
+
+    def _install(self, prepared) -> None:
+        raise NotImplementedError
+
+    def publish_diagnostics(self):
+        raise NotImplementedError
+
+    def publish_status(self, name: str, level: str, message: str, values: dict, hardware_id: str = "") -> None:
+        """One status on ``/diagnostics`` (:func:`.contract.diagnostics_message`); ``hardware_id``: the node's by default."""
+        self._diagnostics.publish(contract.diagnostics_message(
+            self.now_ns(), name, hardware_id or self.get_fully_qualified_name(), level, message, values))
+
+    def close(self) -> None:
+        """Final diagnostics before the node goes (node_main calls it, still able to publish)."""
+        self.publish_diagnostics()
