@@ -6,15 +6,15 @@ plant (:mod:`.network_plant_node`) has generator i under ``/gen<i>``. This
 class translates between ROS and the cores for both: its parameters
 (:func:`.plant_config.run_parameters` and the node's own) are declared,
 validated and applied as every loop node's
-(:class:`nni_msgs_adapter.ros.loop_node.LoopNode`); it waits for the subscribers (:class:`.reporting.SubscriberWait`), runs the
-reporting loop (:class:`.reporting.LockstepStepper` or
-:class:`.reporting.RealtimeReporter`), publishes what it returns (per
-generator its measurement, in lockstep then ``/clock``, then the true states),
-hands each battery command and the writers on each command topic to the
-generator's :class:`.reporting.CommandChannel`, serves ``plant/start_fault``
-(the fault starts then; ``fault_at_start``: at t = 0) and publishes one
-status per generator on ``/diagnostics`` (``run_ended`` in the callback of
-the run's last sample; at exit also printed as one JSON line).
+(:class:`nni_msgs_adapter.ros.loop_node.LoopNode`); it waits for the
+subscribers (:class:`.reporting.SubscriberWait`), runs the reporting loop
+(:class:`.reporting.LockstepStepper` or :class:`.reporting.RealtimeReporter`),
+publishes what it returns (per generator its measurement, in lockstep then
+``/clock``, then the true states), hands each battery command and the writers
+on each command topic to the generator's :class:`.reporting.CommandChannel`,
+serves ``plant/start_fault`` (the fault starts then; ``fault_at_start``: at
+t = 0) and publishes one status per generator on ``/diagnostics`` (``run_ended`` in
+the callback of the run's last sample; at exit also printed as one JSON line).
 
 A plant node sets, in :meth:`_configure_plant`: ``namespaces`` (``("",)``:
 the node's own), ``_plant`` (what :func:`.integrators.advance` integrates),
@@ -94,11 +94,12 @@ class PlantNodeBase(LoopNode):
     # --- start ---------------------------------------------------------------------------
 
     def _try_start(self) -> None:
-        readers = [pub.publisher.get_subscription_count() for pub in self._pmu_pubs]
+        pmu_pubs = [pub.publisher for pub in self._pmu_pubs]
+        readers = [pub.get_subscription_count() for pub in pmu_pubs]
         writers = [sub.get_publisher_count() for sub in self._command_subs]
         fewest, silent = readers.index(min(readers)), writers.index(min(writers))
         state, level, text = self._wait.poll(self.now_ns(), readers[fewest], writers[silent],
-                                             self._pmu_pubs[fewest].publisher.topic_name, self._command_subs[silent].topic_name)
+                                             pmu_pubs[fewest].topic_name, self._command_subs[silent].topic_name)
         if text is not None:
             contract.log_at(self.get_logger(), level, text)
         self._gave_up = state == "give_up"

@@ -17,7 +17,7 @@ from nni_msgs_adapter.ros.ros_params import declared_values, install_validation
 
 
 class StampedPublisher:
-    """A publisher of a per-sample topic (under ``namespace`` if given): ``publish(stamp_ns, *values)`` sends its bytes."""
+    """A per-sample topic's publisher (under ``namespace`` if given): ``publish(stamp_ns, *values)`` sends its bytes."""
 
     def __init__(self, node: Node, topic: str, namespace: str = ""):
         self.layout = contract.layout(topic)
@@ -59,7 +59,7 @@ class LoopNode(Node):
         raise NotImplementedError
 
     def publish_status(self, name: str, level: str, message: str, values: dict, hardware_id: str = "") -> None:
-        """One status on ``/diagnostics`` (:func:`.contract.diagnostics_message`); ``hardware_id``: the node's by default."""
+        """One status on ``/diagnostics`` (:func:`.contract.diagnostics_message`); ``hardware_id`` "": the node's."""
         self._diagnostics.publish(contract.diagnostics_message(
             self.now_ns(), name, hardware_id or self.get_fully_qualified_name(), level, message, values))
 
