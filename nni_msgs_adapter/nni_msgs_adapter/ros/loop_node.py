@@ -32,8 +32,8 @@ class LoopNode(Node):
     """A node of the loop. ``initial_values``: its parameters at start (a ValueError names what cannot start).
 
     A subclass gives :meth:`_validate` (the new full value dict -> what :meth:`_install`
-    applies; ValueError to reject the change) and :meth:`publish_diagnostics` (through
-    :meth:`publish_status`). Both are called only after its ``__init__``, from the executor.
+    applies; ValueError to reject the change), :meth:`_install` and :meth:`publish_diagnostics`
+    (through :meth:`publish_status`). The executor calls them, only after its ``__init__``.
     """
 
     def __init__(self, name: str, specs, **kwargs):
