@@ -22,7 +22,6 @@ class StampedPublisher:
     def __init__(self, node: Node, topic: str, namespace: str = ""):
         self.layout = contract.layout(topic)
         self.publisher = node.create_publisher(*contract.endpoint(topic, namespace))
-        self.layout.pack(0, *(0.0,) * self.layout.count)  # the first pack's cost, before the first sample
 
     def publish(self, stamp_ns: int, *values) -> None:
         self.publisher.publish(self.layout.pack(stamp_ns, *values))
