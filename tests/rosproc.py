@@ -22,12 +22,24 @@ from nni_msgs_adapter.ros.processes import Child, node_command
 _domain_counter = itertools.count()
 
 
-def fresh_domain_id() -> int:
-    """A ROS domain id for one test: distinct within this run, spread across runs by pid.
+def _domain_range() -> range:
+    """The ROS domain ids this test process may use: ``NNI_TEST_DOMAINS=LO-HI`` (inclusive), else 1..100.
 
-    Stays in 1..100, the range safe on Linux for Fast DDS port mapping.
+    1..100 is the range safe on Linux for Fast DDS port mapping. Two test runs at once (two
+    checkouts, or parallel workers) get disjoint ranges, so that no test hears another's nodes.
     """
-    return 1 + (os.getpid() * 7 + next(_domain_counter)) % 100
+    text = os.environ.get("NNI_TEST_DOMAINS", "1-100")
+    low, _, high = text.partition("-")
+    domains = range(int(low), int(high) + 1)
+    if not domains or domains.start < 0 or domains.stop > 233:
+        raise ValueError(f"NNI_TEST_DOMAINS must be LO-HI within 0..232, got {text!r}")
+    return domains
+
+
+def fresh_domain_id() -> int:
+    """A ROS domain id for one test: distinct within this run (cycling through its range), spread across runs by pid."""
+    domains = _domain_range()
+    return domains[(os.getpid() * 7 + next(_domain_counter)) % len(domains)]
 
 
 def ros_env(domain_id: int, **extra) -> dict:
