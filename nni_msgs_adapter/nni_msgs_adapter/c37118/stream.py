@@ -13,12 +13,14 @@ skipped:
   resume at the next byte;
 * a CHK that does not match: ``truncated`` when another frame of the same
   IDCODE starts inside it (its sender cut it short), resuming there;
-  ``bad_crc`` otherwise, resuming after it when a SYNC byte follows it (the
-  framing held), at the next byte when none does.
+  ``bad_crc`` otherwise, resuming at the next byte (never past a possible
+  frame start: a damaged FRAMESIZE must not swallow the frames after it).
 
-While resynchronising after a bad candidate, the garbage skipped is not
-counted again as ``bad_sync``. Memory is bounded: after each ``feed`` at
-most one incomplete frame, shorter than ``max_frame_bytes``, stays buffered.
+A bad stretch counts once, by its first fault: until the next good frame,
+the candidates tried while resynchronising (0xAA bytes inside a damaged
+frame, garbage) are not counted again. Memory is bounded: after each
+``feed`` at most one incomplete frame, shorter than ``max_frame_bytes``,
+stays buffered.
 Pure python: no ROS import.
 """
 
@@ -59,7 +61,8 @@ class FrameReassembler:
         return len(self._buffer)
 
     def _reject(self, reason: str) -> None:
-        self.rejected[reason] = self.rejected.get(reason, 0) + 1
+        if not self._resyncing:
+            self.rejected[reason] = self.rejected.get(reason, 0) + 1
         self._resyncing = True
 
     def feed(self, data) -> list[bytes]:
@@ -72,8 +75,7 @@ class FrameReassembler:
                 sync_at = buffer.find(SYNC_BYTE, at + 1)
                 end = len(buffer) if sync_at < 0 else sync_at
                 self.skipped_bytes += end - at
-                if not self._resyncing:
-                    self._reject("bad_sync")
+                self._reject("bad_sync")
                 at = end
                 continue
             available = len(buffer) - at
@@ -104,7 +106,7 @@ class FrameReassembler:
                 self._reject("truncated")
             else:
                 self._reject("bad_crc")
-                restart = end if end == len(buffer) or buffer[end] == SYNC_BYTE else at + 1
+                restart = at + 1
             self.skipped_bytes += restart - at
             at = restart
         del buffer[:at]
