@@ -18,7 +18,8 @@ its own state:
   it to the server's own I/O thread through a deque and one wake-up byte:
   it never blocks and takes a few microseconds beyond the encoding.
 * each PDC has a send queue bounded to ``queue_frames`` frames; a PDC that
-  stalls or never reads fills its kernel socket buffer, then its queue, and
+  stalls or never reads fills its kernel socket buffer (fixed at
+  ``SEND_BUFFER_BYTES``), then its queue, and
   from then on its oldest queued frames are dropped, for it alone, and
   counted ``frames_dropped``. A PDC that goes away is forgotten (its
   counters go to the totals). At most ``max_clients`` PDCs at once; more are
@@ -51,6 +52,9 @@ DEFAULT_PORT = 4712
 #: Frames a PDC may have queued before its oldest are dropped: 2 s at 50 frames/s.
 DEFAULT_QUEUE_FRAMES = 100
 DEFAULT_MAX_CLIENTS = 64
+#: Kernel send buffer per PDC (Linux doubles it for its bookkeeping): fixed, so that the kernel's share of a
+#: stalled PDC's backlog is bounded too (autotuning would let it grow to megabytes).
+SEND_BUFFER_BYTES = 256 * 1024
 #: A command frame is 18 bytes; an extended one carries the user's data: this much is accepted.
 MAX_COMMAND_BYTES = 1024
 #: Frames the plant may hand off before the I/O thread takes them; more are dropped (and counted).
@@ -263,6 +267,7 @@ class PmuServer:
                 continue
             sock.setblocking(False)
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER_BYTES)
             pdc = _Pdc(sock, _address_text(address), FrameReassembler(MAX_COMMAND_BYTES))
             self._pdcs[sock.fileno()] = pdc
             self._selector.register(sock, selectors.EVENT_READ)
