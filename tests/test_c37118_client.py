@@ -47,8 +47,8 @@ def test_the_session_asks_for_cfg2_then_data_and_gives_samples_stamped_from_soc_
     (first, second) = samples
     values = plant_values(2, 1)
     assert first.instant_ns == EPOCH_NS + 20_000_000 and first.name == "G1 bus 31" and second.idcode == 102
-    assert first.angles_rad[0] == pytest.approx(float(values.angle_rad[0, 0]), abs=1e-6)
-    assert first.frequency_hz == pytest.approx(float(values.frequency_hz[0]), abs=1e-5)
+    assert first.reading.angles_rad[0] == pytest.approx(float(values.angle_rad[0, 0]), abs=1e-6)
+    assert first.reading.frequency_hz == pytest.approx(float(values.frequency_hz[0]), abs=1e-5)
     assert session.counters() == {"samples": 4, "frames": {"cfg2": 1, "data": 2}, "rejected": {}}
 
 

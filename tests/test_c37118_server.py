@@ -112,7 +112,7 @@ def test_our_client_core_gets_the_config_turns_data_on_and_reads_the_samples(ser
     last = samples[-1]
     assert (last.station, last.name, last.idcode) == (2, "G3 bus 33", 103)
     assert last.instant_ns == EPOCH_NS + 19 * 20_000_000
-    assert last.angles_rad[0] == pytest.approx(float(wrapped(plant_values(3, 19).angle_rad[2, 0])), abs=1e-6)
+    assert last.reading.angles_rad[0] == pytest.approx(float(wrapped(plant_values(3, 19).angle_rad[2, 0])), abs=1e-6)
 
 
 def test_bad_and_out_of_order_commands_are_counted_and_change_nothing(server):

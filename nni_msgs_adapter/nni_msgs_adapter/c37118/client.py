@@ -41,8 +41,9 @@ import threading
 import time
 from dataclasses import dataclass
 
+from .counting import add, drain
 from .frames import (CONFIG_TYPES, MAX_FRAME_BYTES, Command, Config, DataFrameDecoder, FrameError, FrameType, Stat,
-                     decode_config, decode_header, encode_command, read_head)
+                     StationReading, decode_config, decode_header, encode_command, read_head)
 from .stream import FrameReassembler
 
 RETRY_INITIAL_S = 0.5
@@ -55,27 +56,18 @@ _POLL_S = 0.2
 
 @dataclass(frozen=True)
 class StationSample:
-    """One station's measurement from one data frame: stamped from SOC/FRACSEC, in physical units.
+    """One station's measurement from one data frame, stamped from SOC/FRACSEC (ns since 1970 UTC).
 
     ``station`` is its index in the configuration (data frame order);
-    ``angles_rad`` are in [-pi, pi] as C37.118 sends them.
+    ``reading`` its values in physical units (angles in [-pi, pi] as C37.118
+    sends them).
     """
 
     station: int
     name: str
     idcode: int
     instant_ns: int
-    stat: int
-    magnitudes: tuple[float, ...]
-    angles_rad: tuple[float, ...]
-    frequency_hz: float
-    rocof_hz_per_s: float
-    analogs: tuple[float, ...]
-    digitals: tuple[int, ...]
-
-
-def _add(counts: dict, key: str, n: int = 1) -> None:
-    counts[key] = counts.get(key, 0) + n
+    reading: StationReading
 
 
 class PdcSession:
@@ -101,7 +93,7 @@ class PdcSession:
     def rejected(self) -> dict[str, int]:
         counts = dict(self.reader.rejected)
         for reason, n in self._rejected.items():
-            _add(counts, reason, n)
+            add(counts, reason, n)
         return counts
 
     def _command(self, command: Command) -> bytes:
@@ -124,7 +116,7 @@ class PdcSession:
             try:
                 self._frame(frame, samples, replies)
             except FrameError as error:
-                _add(self._rejected, error.reason)
+                add(self._rejected, error.reason)
         self.samples += len(samples)
         return samples, replies
 
@@ -136,13 +128,13 @@ class PdcSession:
             self.config = decode_config(frame, self.idcode).config
             self._decoder = DataFrameDecoder(self.config)
             self._config_requested = False
-            _add(self.frames, head.frame_type.name.lower())
+            add(self.frames, head.frame_type.name.lower())
             if not self._data_on:
                 self._data_on = True
                 replies.append(self._command(Command.DATA_ON))
         elif head.frame_type == FrameType.HEADER:
             self.header_text = decode_header(frame, self.idcode).text
-            _add(self.frames, "header")
+            add(self.frames, "header")
         elif head.frame_type == FrameType.DATA:
             self._data(frame, samples, replies)
         else:
@@ -150,15 +142,15 @@ class PdcSession:
 
     def _data(self, frame: bytes, samples: list, replies: list) -> None:
         if self._decoder is None:
-            _add(self._rejected, "no_config")
+            add(self._rejected, "no_config")
             return
         data = self._decoder.decode(frame)
-        _add(self.frames, "data")
+        add(self.frames, "data")
         if self._last_instant_ns is not None and data.instant_ns <= self._last_instant_ns:
-            _add(self._rejected, "duplicate" if data.instant_ns == self._last_instant_ns else "time_backwards")
+            add(self._rejected, "duplicate" if data.instant_ns == self._last_instant_ns else "time_backwards")
             return
         if self.max_age_ns is not None and self._clock_ns() - data.instant_ns > self.max_age_ns:
-            _add(self._rejected, "stale")
+            add(self._rejected, "stale")
             return
         self._last_instant_ns = data.instant_ns
         for k, (station, reading) in enumerate(zip(self.config.stations, data.stations)):
@@ -167,11 +159,9 @@ class PdcSession:
                 self._config_requested = True
                 replies.append(self._command(Command.SEND_CFG2))
             if not stat.data_valid:
-                _add(self._rejected, "invalid_data")
+                add(self._rejected, "invalid_data")
                 continue
-            samples.append(StationSample(k, station.name, station.idcode, data.instant_ns, reading.stat,
-                                         reading.magnitudes, reading.angles_rad, reading.frequency_hz,
-                                         reading.rocof_hz_per_s, reading.analogs, reading.digitals))
+            samples.append(StationSample(k, station.name, station.idcode, data.instant_ns, reading))
 
     def counters(self) -> dict:
         return {"samples": self.samples, "frames": dict(self.frames), "rejected": self.rejected}
@@ -209,10 +199,8 @@ class PdcClient:
             self._thread = None
 
     def events(self) -> list[str]:
-        lines = []
-        while self._events:
-            lines.append(self._events.popleft())
-        return lines
+        """The lines to log since the last call (oldest first; at most the last 256)."""
+        return drain(self._events)
 
     def counters(self) -> dict:
         return {"connected": self.connected, "connections": self.connections,

@@ -872,9 +872,3 @@ class DataFrameDecoder:
                             map(tuple, records["digital"].tolist()))
         return DataFrame(head, instant_ns_from(head.soc, head.fraction, self.config.time_base), tuple(readings))
 
-
-def frame_type_of(frame) -> FrameType | None:
-    """The frame type SYNC announces (no check of the rest); None when it announces none."""
-    if len(frame) < 2 or frame[0] != SYNC_BYTE or frame[1] & 0x80 or frame[1] >> 4 > FrameType.CFG3:
-        return None
-    return FrameType(frame[1] >> 4)

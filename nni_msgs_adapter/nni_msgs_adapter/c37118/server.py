@@ -43,6 +43,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+from .counting import add, drain, merge
 from .frames import (Command, Config, DataFrameEncoder, FrameError, FrameType, Measurements, check_reporting_rate,
                      decode_command, encode_config, encode_header)
 from .stream import FrameReassembler
@@ -69,15 +70,6 @@ _COMMAND_NAMES = {Command.DATA_OFF: "data_off", Command.DATA_ON: "data_on", Comm
 _REPLIES = {Command.SEND_CFG1: FrameType.CFG1, Command.SEND_CFG2: FrameType.CFG2, Command.SEND_CFG3: FrameType.CFG3}
 
 
-def _add(counts: dict, key: str, n: int = 1) -> None:
-    counts[key] = counts.get(key, 0) + n
-
-
-def _merge(total: dict, counts: dict) -> None:
-    for key, n in counts.items():
-        _add(total, key, n)
-
-
 @dataclass
 class _Pdc:
     """One connected PDC: its socket, command reader, send queue and counters."""
@@ -98,7 +90,7 @@ class _Pdc:
     @property
     def rejected(self) -> dict:
         counts = dict(self.reader.rejected)
-        _merge(counts, self.refused_commands)
+        merge(counts, self.refused_commands)
         return counts
 
     def counters(self) -> dict:
@@ -215,10 +207,7 @@ class PmuServer:
 
     def events(self) -> list[str]:
         """The lines to log since the last call (oldest first; at most the last 256)."""
-        lines = []
-        while self._events:
-            lines.append(self._events.popleft())
-        return lines
+        return drain(self._events)
 
     def counters(self) -> dict:
         """Totals (over every PDC ever connected) and one dict per connected PDC."""
@@ -229,8 +218,8 @@ class PmuServer:
         for pdc in pdcs:
             for key in ("frames_sent", "frames_dropped", "bytes_sent", "redundant"):
                 totals[key] += pdc[key]
-            _merge(commands, pdc["commands"])
-            _merge(rejected, pdc["rejected"])
+            merge(commands, pdc["commands"])
+            merge(rejected, pdc["rejected"])
         return {"connected": len(pdcs), **totals, "offered": self.offered, "handoff_dropped": self.handoff_dropped,
                 "commands": commands, "rejected": rejected, "pdcs": pdcs}
 
@@ -344,13 +333,13 @@ class PmuServer:
         try:
             command = decode_command(frame, self.config.idcode)
         except FrameError as error:
-            _add(pdc.refused_commands, error.reason)
+            add(pdc.refused_commands, error.reason)
             return
         name = _COMMAND_NAMES.get(command.command)
         if name is None:
-            _add(pdc.refused_commands, "unknown_command")
+            add(pdc.refused_commands, "unknown_command")
             return
-        _add(pdc.commands, name)
+        add(pdc.commands, name)
         if command.command in (Command.DATA_ON, Command.DATA_OFF):
             on = command.command == Command.DATA_ON
             if pdc.data_on == on:
@@ -381,6 +370,6 @@ class PmuServer:
         for key, value in (("frames_sent", pdc.frames_sent), ("frames_dropped", pdc.frames_dropped + len(pdc.queue)),
                            ("bytes_sent", pdc.bytes_sent), ("redundant", pdc.redundant)):
             self._totals[key] += value
-        _merge(self._commands, pdc.commands)
-        _merge(self._rejected, pdc.rejected)
+        merge(self._commands, pdc.commands)
+        merge(self._rejected, pdc.rejected)
         self._events.append(f"PDC {pdc.address} went away ({why})")
