@@ -48,6 +48,11 @@ PURE_MODULES = [
     "nni_battery_controller.input_gate",
     "nni_battery_controller.controller_core",
     "nni_battery_controller.controller_config",
+    "nni_msgs_adapter.c37118.counting",
+    "nni_msgs_adapter.c37118.frames",
+    "nni_msgs_adapter.c37118.stream",
+    "nni_msgs_adapter.c37118.server",
+    "nni_msgs_adapter.c37118.client",
 ]
 
 PROBE = """
