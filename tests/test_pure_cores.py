@@ -24,6 +24,8 @@ PURE_MODULES = [
     "nni_plant_sim.cases.replicated",
     "nni_battery_controller.law",
     "nni_battery_controller.simulate",
+    "nni_battery_controller.verdicts",
+    "nni_battery_controller.margins",
     "nni_battery_controller.roa",
     "nni_battery_controller.closed_loop",
     "nni_battery_controller.cli",

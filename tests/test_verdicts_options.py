@@ -24,7 +24,8 @@ from scipy.integrate import solve_ivp
 
 from rosproc import fresh_domain_id, ros_env
 
-from nni_battery_controller.simulate import simulate_continuous, verdict_text
+from nni_battery_controller.simulate import simulate_continuous
+from nni_battery_controller.verdicts import verdict_text
 from nni_msgs_adapter.viewing.palette import colour_hex
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -271,7 +272,7 @@ def test_figure_title_names_scenario_controller_mode_and_shades_the_fault(tmp_pa
 
 def test_figure_legends_and_colours_follow_b_not_order(paper_plant, paper_controller):
     from nni_battery_controller.cli import runs_figure
-    from nni_battery_controller.simulate import assess
+    from nni_battery_controller.verdicts import assess
     from nni_plant_sim.scenarios import TransferLimitFault
 
     fault = TransferLimitFault(0.0, 0.15)

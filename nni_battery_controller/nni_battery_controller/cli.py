@@ -32,20 +32,16 @@ import numpy as np
 from nni_battery_controller.options import add_link_options, add_model_options, given_link_options, link_of, \
     resolve_model
 from nni_battery_controller.roa import RETURNS, STAYS, STEP_S as ROA_STEP_S, RoaGrid, report, sweep
-from nni_battery_controller.simulate import (
+from nni_battery_controller.margins import (
     CCT_TOLERANCE_S,
     DELAY_MARGIN_TOLERANCE_S,
-    SETTLE_BAND_RAD,
-    assess,
-    critical_clearing_time,
     DELAY_SCAN_STEP_S,
+    critical_clearing_time,
     delay_margins,
     equal_area_clearing_time_s,
-    fastest_rate_per_s,
-    simulate_continuous,
-    simulate_sampled,
-    verdict_text,
 )
+from nni_battery_controller.simulate import fastest_rate_per_s, simulate_continuous, simulate_sampled
+from nni_battery_controller.verdicts import SETTLE_BAND_RAD, assess, verdict_text
 from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,

@@ -28,7 +28,7 @@ from nni_battery_controller.network_sim import (
     simulate_network,
 )
 from nni_battery_controller.options import add_link_options, link_of
-from nni_battery_controller.simulate import DELAY_MARGIN_TOLERANCE_S, DELAY_SCAN_STEP_S, delay_margins
+from nni_battery_controller.margins import DELAY_MARGIN_TOLERANCE_S, DELAY_SCAN_STEP_S, delay_margins
 from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,
