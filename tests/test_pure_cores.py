@@ -27,6 +27,7 @@ PURE_MODULES = [
     "nni_battery_controller.verdicts",
     "nni_battery_controller.margins",
     "nni_battery_controller.roa",
+    "nni_battery_controller.figures",
     "nni_battery_controller.closed_loop",
     "nni_battery_controller.cli",
     "nni_battery_controller.network_sim",

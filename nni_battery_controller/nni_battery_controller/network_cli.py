@@ -19,7 +19,8 @@ import time
 
 import numpy as np
 
-from nni_battery_controller.cli import DEFAULT_DELAY_MAX_S, delay_margin_row, delay_search_text, save_png
+from nni_battery_controller.cli import DEFAULT_DELAY_MAX_S, delay_margin_row, delay_search_text
+from nni_battery_controller.figures import plot_network
 from nni_battery_controller.network_sim import (
     ANGLE_REFERENCES,
     NetworkLaw,
@@ -215,43 +216,6 @@ def format_run(outcome, b, reference, net) -> str:
                     f"{_num(g.settling_time_s):>10} {g.max_abs_battery_power_pu:>14.4f} "
                     f"{g.max_abs_battery_power_mw:>14.1f} {_num(g.last_saturated_s):>12}")
     return "\n".join(rows)
-
-
-def plot_network(runs, title: str, path) -> None:
-    """Per run (column): COI-relative angles, frequency deviations and battery powers with their limits."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(3, len(runs), figsize=(4.2 * len(runs), 9), sharex=True, squeeze=False,
-                             constrained_layout=True)
-    for column, (label, traj, r) in enumerate(runs):
-        net = traj.net
-        scale = net.base_mva / net.mbase_mva
-        angles, power = np.degrees(traj.coi_angles()[:, :, r]), traj.battery_power_pu[:, :, r] * scale
-        for i, name in enumerate(net.names):
-            color = f"C{i % 10}"
-            axes[0, column].plot(traj.t_s, angles[:, i], color=color, label=name)
-            axes[1, column].plot(traj.t_s, traj.speed_rad_s[:, i, r] / (2 * math.pi), color=color)
-            axes[2, column].step(traj.t_s, power[:, i], where="post", color=color)
-        limit = traj.limits_pu[:, r] * scale
-        if np.all(np.isfinite(limit)) and np.ptp(limit) == 0:
-            for sign in (1, -1):
-                axes[2, column].axhline(sign * limit[0], color="grey", ls="--", lw=1)
-        axes[0, column].set_title(label)
-        axes[0, column].set_ylim(-200, 200)
-        axes[2, column].set_xlabel("time after the disturbance (s)")
-    axes[0, 0].set_ylabel("rotor angle - COI angle (deg)")
-    axes[1, 0].set_ylabel("frequency deviation (Hz)")
-    axes[2, 0].set_ylabel("battery P_ST (pu of rating; limits dashed)")
-    axes[0, 0].legend(loc="upper right", fontsize="small", ncol=2)
-    for ax in axes.flat:
-        ax.grid(True, alpha=0.3)
-    # Wrapped at the figure's edges when drawn: a one-run figure cut its title off at both.
-    fig.suptitle(title, wrap=True)
-    save_png(fig, path)
-    plt.close(fig)
 
 
 def _json_b(b):

@@ -546,7 +546,7 @@ def describe(args) -> int:
 
 def plot(args) -> int:
     """``--plot OUT.png``: the run's figure, as ``nni-simulate --plot`` draws it, from the recorded samples."""
-    from nni_battery_controller.cli import plot_runs
+    from nni_battery_controller.figures import plot_runs
     from nni_battery_controller.verdicts import assess
 
     recording = load(args)
