@@ -41,7 +41,7 @@ from nni_msgs_adapter.ros.cli_support import (
     run_cli,
     writable_output,
 )
-from nni_plant_sim.cases import CASES, load_network
+from nni_plant_sim.cases import CASES, DEFAULT_FAULT_BUS, load_network
 from nni_plant_sim.network_scenarios import (
     NETWORK_SCENARIOS,
     SCENARIO_PARAMETERS as SCENARIO_OPTIONS,
@@ -51,9 +51,6 @@ from nni_plant_sim.network_scenarios import (
     MechanicalStep,
 )
 
-#: Fault bus when --fault-bus is not given: a load bus of each shipped case (kundur_ring_52: copy 0's bus 7, as the
-#: network plant node's default).
-DEFAULT_FAULT_BUS = {"kundur_two_area": 7, "ieee39": 16, "kundur_ring_52": 7}
 DEFAULT_LIMITS = (0.0, 0.1, 0.3, math.inf)
 
 
