@@ -25,7 +25,7 @@ import pytest
 from rerun.chunk import RrdReader
 from rosbags.highlevel import AnyReader
 
-from nni_battery_controller.cli import PAPER_BATTERY_LIMITS
+from nni_battery_controller.options import PAPER_BATTERY_LIMITS
 from nni_battery_controller.demo import recording_name
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.recording.mcap_io import read_messages

@@ -32,9 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from nni_battery_controller.cli import PAPER_BATTERY_LIMITS
 from nni_battery_controller.figures import plot_runs
-from nni_battery_controller.options import add_model_options, resolve_model
+from nni_battery_controller.options import PAPER_BATTERY_LIMITS, add_model_options, resolve_model
 from nni_battery_controller.simulate import Trajectory
 from nni_battery_controller.verdicts import assess, verdict_text
 from nni_msgs_adapter.ros.cli_support import (

@@ -46,13 +46,13 @@ from nni_battery_controller.demo import (
     write_summary,
 )
 from nni_battery_controller.controller_config import parameters as controller_node_parameters
-from nni_battery_controller.network_cli import (
+from nni_battery_controller.figures import plot_network
+from nni_battery_controller.network_common import (
     DEFAULT_LIMITS,
-    SCENARIO_OPTIONS,
     add_scenario_options,
     format_run,
     make_scenario,
-    plot_network,
+    refuse_foreign_scenario_options,
 )
 from nni_battery_controller.network_deployment import (
     DEPLOYMENTS,
@@ -155,9 +155,7 @@ def parse_arguments(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
     refuse(given_options(argv))
     args = build_parser().parse_args(argv)
-    for option, scenarios in SCENARIO_OPTIONS.items():
-        if getattr(args, option, None) is not None and args.scenario not in scenarios:
-            raise CliError(f"--{option.replace('_', '-')} does not apply to --scenario {args.scenario}")
+    refuse_foreign_scenario_options(args)
     args.net = net = load_network(args.case)
     args.scenario_object, args.description, _ = make_scenario(net, args)
     args.scenario_values = scenario_parameters(net, args.scenario_object, args.trip_line or ())

@@ -21,15 +21,11 @@ options: nni-simulate --case CASE --help.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
 import time
 
-from nni_battery_controller.options import add_link_options, add_model_options, given_link_options, link_of, \
-    resolve_model
-from nni_battery_controller.roa import RETURNS, STEP_S as ROA_STEP_S, RoaGrid, report, sweep
 from nni_battery_controller.figures import plot_runs, roa_figure, save_png
 from nni_battery_controller.margins import (
     CCT_TOLERANCE_S,
@@ -39,24 +35,40 @@ from nni_battery_controller.margins import (
     delay_margins,
     equal_area_clearing_time_s,
 )
+from nni_battery_controller.options import (
+    PAPER_BATTERY_LIMITS,
+    add_link_options,
+    add_model_options,
+    given_link_options,
+    link_of,
+    resolve_model,
+)
+from nni_battery_controller.roa import RETURNS, STEP_S as ROA_STEP_S, RoaGrid, report, sweep
 from nni_battery_controller.simulate import fastest_rate_per_s, simulate_continuous, simulate_sampled
+from nni_battery_controller.study_common import (
+    DEFAULT_DELAY_MAX_S,
+    delay_margin_row,
+    delay_search_lines,
+    link_json,
+    refuse_beside_delay_margin,
+    resolve_delay_span,
+)
 from nni_battery_controller.verdicts import SETTLE_BAND_RAD, assess, verdict_text
 from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,
-    atomic_output,
     battery_limit,
     float_within,
     positive_float,
     run_cli,
     writable_output,
+    write_json,
 )
 from nni_msgs_adapter.ros.defaults import plant_defaults
 from nni_plant_sim.link import NO_LINK
 from nni_plant_sim.model import SmibParams, restoring_power
 from nni_plant_sim.scenarios import TransferLimitFault
 
-PAPER_BATTERY_LIMITS = (0.0, 0.2, 0.3, math.inf)
 #: Output step of the continuous runs, s (as simulate_continuous's default).
 OUTPUT_STEP_S = 1e-3
 #: Bounds on one command's work, checked before any: samples kept (memory, ~100 B each),
@@ -74,8 +86,6 @@ EXIT_BROKEN_PIPE = 141
 _sampling_rate_hz = float_within(10.0, 10_000.0, "Hz or 'continuous'")
 #: --controller-rate as given for the continuous law (None once the options are resolved; None on the parser: not given).
 CONTINUOUS = "continuous"
-#: --delay-max when not given, s.
-DEFAULT_DELAY_MAX_S = 1.0
 
 
 def controller_rate(text: str):
@@ -258,9 +268,7 @@ def run_roa(args, model, plant: SmibParams) -> int:
     marked = (model.plant["delta0_rad"] - plant.delta_bar_rad, model.plant["speed0_rad_s"])
     fig = roa_figure(plant, grid, basins, marked, model.header())
     json_path, png_path = (args.roa.with_name(args.roa.name + suffix) for suffix in (".json", ".png"))
-    with atomic_output(json_path) as handle:
-        json.dump(summary, handle, indent=2)
-        handle.write("\n")
+    write_json(json_path, summary)
     save_png(fig, png_path)
     print(f"wrote {json_path} and {png_path}")
     return 0
@@ -297,12 +305,10 @@ def run_cct(args, model, plant: SmibParams) -> int:
         closed_form = round(equal_area_clearing_time_s(plant), 6)
         print(f"equal-area closed form for b = 0 (bolted fault, D = 0): {closed_form:.4f} s")
     if args.json:
-        with atomic_output(args.json) as handle:
-            json.dump({"cct": [r.to_json() for r in results], "tolerance_s": CCT_TOLERANCE_S,
-                       "duration_s": args.duration, "controller": controller_text(args.controller_rate),
-                       "scenario": {"name": "transfer_limit_fault", "fault_p_max_pu": fault_p_max},
-                       "equal_area_cct_s": closed_form, **link_json(args)}, handle, indent=2)
-            handle.write("\n")
+        write_json(args.json, {"cct": [r.to_json() for r in results], "tolerance_s": CCT_TOLERANCE_S,
+                               "duration_s": args.duration, "controller": controller_text(args.controller_rate),
+                               "scenario": {"name": "transfer_limit_fault", "fault_p_max_pu": fault_p_max},
+                               "equal_area_cct_s": closed_form, **link_json(link_of(args))})
         print(f"wrote {args.json}")
     return 0
 
@@ -341,21 +347,14 @@ def run_time_domain(args, model, plant: SmibParams) -> int:
     if any(o["equilibrium_moved"] for o in outcomes):
         print(permanent_step_note(model, plant))
     if args.json:
-        with atomic_output(args.json) as handle:
-            json.dump({"scenario": model.scenario_values(), "controller": controller_text(args.controller_rate),
-                       "scenarios": outcomes, **link_json(args)}, handle, indent=2)
-            handle.write("\n")
+        write_json(args.json, {"scenario": model.scenario_values(), "controller": controller_text(args.controller_rate),
+                               "scenarios": outcomes, **link_json(link_of(args))})
         print(f"wrote {args.json}")
     if args.plot:
         plot_runs(trajectories, outcomes, args.plot, model.scenario_values(),
                   controller_text(args.controller_rate), "offline")
         print(f"wrote {args.plot}")
     return 0
-
-
-def link_json(args) -> dict:
-    """``{"link": ...}`` for a run through a link, else nothing (the JSON of a run without one is unchanged)."""
-    return {"link": link_of(args).to_json()} if link_of(args).active else {}
 
 
 def run_delay_margin(args, model, plant: SmibParams) -> int:
@@ -368,10 +367,8 @@ def run_delay_margin(args, model, plant: SmibParams) -> int:
     print(f"Delay margin, SMIB, {model.header()}")
     print(f"controller sampled at {rate:g} Hz: the longest fixed delay from a measurement to its command taking "
           f"effect that keeps the rotor angle within +-180 degrees (in synchronism) over {args.duration:g} s")
-    print(delay_search_text(scan_s, args.delay_max))
-    if link.active:
-        print(f"on top of the delay: {link.describe()}")
-    print(f"{'b (pu)':>7} {'margin (ms)':>12} {'slips at (ms)':>14} {'runs':>5}  result")
+    print("\n".join(delay_search_lines(scan_s, args.delay_max, link)))
+
     def in_sync(delay_s, indices):
         return [assess(simulate(plant, ctrls[i], scenario, args.duration, rate, link.with_delay(delay_s)))
                 .in_synchronism for i in indices]
@@ -380,51 +377,28 @@ def run_delay_margin(args, model, plant: SmibParams) -> int:
     for result in results:
         print(delay_margin_row(result))
     if args.json:
-        with atomic_output(args.json) as handle:
-            json.dump({"delay_margin": [r.to_json() for r in results], "tolerance_s": DELAY_MARGIN_TOLERANCE_S,
-                       "scan_step_s": scan_s, "searched_up_to_s": args.delay_max, "duration_s": args.duration, "controller": controller_text(rate),
-                       "scenario": model.scenario_values(), "criterion": "in synchronism: the rotor angle never "
-                       "passed +-180 degrees", "link": link.to_json() | {"delay_s": "searched"}}, handle, indent=2)
-            handle.write("\n")
+        write_json(args.json, {"delay_margin": [r.to_json() for r in results], "tolerance_s": DELAY_MARGIN_TOLERANCE_S,
+                               "scan_step_s": scan_s, "searched_up_to_s": args.delay_max, "duration_s": args.duration,
+                               "controller": controller_text(rate), "scenario": model.scenario_values(),
+                               "criterion": "in synchronism: the rotor angle never passed +-180 degrees",
+                               **link_json(link, delay_searched=True)})
         print(f"wrote {args.json}")
     return 0
-
-
-def delay_search_text(scan_s: float, upper_s: float) -> str:
-    """How the delay margin was searched, for the lines above its table."""
-    return (f"scan from 0 in steps of {scan_s * 1e3:g} ms (--delay-step) up to {upper_s:g} s (--delay-max) until a "
-            f"run slips, then bisection to {DELAY_MARGIN_TOLERANCE_S * 1e3:g} ms; the margin is the first loss "
-            f"(a longer delay may be in synchronism again)")
-
-
-def delay_margin_row(result, prefix: str = "") -> str:
-    """One row of the delay margin table (``prefix``: columns before b)."""
-    margin = "-" if result.margin_s is None or result.slips_s is None else f"{result.margin_s * 1e3:.1f}"
-    slips = "-" if result.slips_s is None else f"{result.slips_s * 1e3:.1f}"
-    return f"{prefix}{result.b:>7g} {margin:>12} {slips:>14} {result.runs:>5}  {result.text()}"
 
 
 def resolve_link_options(args) -> None:
     """The controller rate (--delay-margin: the plant node's by default) and the link options where they apply."""
     continuous_given = args.controller_rate == CONTINUOUS
     if args.delay_margin:
-        for flag in ("roa", "cct", "plot", "link_delay"):
-            if getattr(args, flag):
-                raise CliError(f"--delay-margin searches the link's fixed delay and prints a table (and --json): "
-                               f"it takes no --{flag.replace('_', '-')}")
+        refuse_beside_delay_margin(args, ("roa", "cct", "plot", "link_delay"))
         if continuous_given:
             raise CliError("--delay-margin delays the commands of the sampled-data loop: it takes no "
                            "--controller-rate continuous")
         if args.controller_rate is None:
             args.controller_rate = plant_defaults()["pmu_rate_hz"]
-        args.delay_max = DEFAULT_DELAY_MAX_S if args.delay_max is None else args.delay_max
-        args.delay_step = DELAY_SCAN_STEP_S if args.delay_step is None else args.delay_step
-        if args.delay_step > args.delay_max:
-            raise CliError(f"--delay-step {args.delay_step:g} s is longer than --delay-max {args.delay_max:g} s")
+    resolve_delay_span(args)
+    if args.delay_margin:
         return
-    for flag in ("delay_max", "delay_step"):
-        if getattr(args, flag) is not None:
-            raise CliError(f"--{flag.replace('_', '-')} applies to --delay-margin only")
     if continuous_given:
         args.controller_rate = None
     given = given_link_options(args)
@@ -450,11 +424,7 @@ def apply_mode_defaults(args) -> None:
 
 
 def main(argv=None) -> int:
-    """Entry point of ``nni-simulate`` (``--case``: the network study of :mod:`network_cli`)."""
-    if any(arg == "--case" or arg.startswith("--case=") for arg in (sys.argv[1:] if argv is None else argv)):
-        from nni_battery_controller import network_cli
-
-        return network_cli.main(argv)
+    """``nni-simulate`` without ``--case`` (called by :func:`nni_battery_controller.simulate_command.main`)."""
     parser = build_parser()
 
     def body():
@@ -491,6 +461,3 @@ def main(argv=None) -> int:
             return 130
 
     return run_cli(body, parser.prog)
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -13,14 +13,19 @@ every generator, the draws its own per generator).
 
 from __future__ import annotations
 
-import json
-import math
 import time
 
-import numpy as np
-
-from nni_battery_controller.cli import DEFAULT_DELAY_MAX_S, delay_margin_row, delay_search_text
 from nni_battery_controller.figures import plot_network
+from nni_battery_controller.margins import DELAY_MARGIN_TOLERANCE_S, DELAY_SCAN_STEP_S, delay_margins
+from nni_battery_controller.network_common import (
+    DEFAULT_LIMITS,
+    add_scenario_options,
+    format_run,
+    json_b,
+    limit_words,
+    make_scenario,
+    refuse_foreign_scenario_options,
+)
 from nni_battery_controller.network_sim import (
     ANGLE_REFERENCES,
     NetworkLaw,
@@ -29,47 +34,25 @@ from nni_battery_controller.network_sim import (
     simulate_network,
 )
 from nni_battery_controller.options import add_link_options, link_of
-from nni_battery_controller.margins import DELAY_MARGIN_TOLERANCE_S, DELAY_SCAN_STEP_S, delay_margins
+from nni_battery_controller.study_common import (
+    DEFAULT_DELAY_MAX_S,
+    delay_margin_row,
+    delay_search_lines,
+    link_json,
+    refuse_beside_delay_margin,
+    resolve_delay_span,
+)
 from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,
-    atomic_output,
     battery_limit,
-    finite_float,
     float_within,
     positive_float,
     run_cli,
     writable_output,
+    write_json,
 )
-from nni_plant_sim.cases import CASES, DEFAULT_FAULT_BUS, load_network
-from nni_plant_sim.network_scenarios import (
-    NETWORK_SCENARIOS,
-    SCENARIO_PARAMETERS as SCENARIO_OPTIONS,
-    AngleDisplacement,
-    BusFault,
-    LineTrip,
-    MechanicalStep,
-)
-
-DEFAULT_LIMITS = (0.0, 0.1, 0.3, math.inf)
-
-
-def add_scenario_options(group) -> None:
-    """The disturbance options of a network (``nni-simulate --case`` and ``nni-demo --case``)."""
-    group.add_argument("--scenario", choices=NETWORK_SCENARIOS, default="bus_fault")
-    group.add_argument("--fault-bus", type=int,
-                       help="bus of the three-phase fault (default: 7 Kundur and kundur_ring_52, 16 IEEE 39)")
-    group.add_argument("--fault-r", type=float_within(0.0, 1e6, "pu"), help="fault resistance, pu system base (0)")
-    group.add_argument("--fault-x", type=finite_float, help="fault reactance, pu system base (0: bolted)")
-    group.add_argument("--clearing-time", type=positive_float, help="fault duration, s (default 0.1)")
-    group.add_argument("--trip-line", type=int, nargs="+", metavar="BUS",
-                       help="FROM TO [CIRCUIT]: the branch that opens (at clearing, or at t = 0 for line_trip)")
-    group.add_argument("--step-p-mech", type=float_within(0.0, 100.0, "pu"),
-                       help="mechanical_step: the machine's P_m during the step, pu of its rating")
-    group.add_argument("--step-duration", type=positive_float, help="mechanical_step: s (default: for good)")
-    group.add_argument("--displace", type=finite_float, help="angle_displacement: rad added to --machine angles")
-    group.add_argument("--machine", type=int, nargs="+", metavar="BUS",
-                       help="generator bus(es) of mechanical_step (one) or angle_displacement")
+from nni_plant_sim.cases import CASES, load_network
 
 
 def build_parser() -> OneLineParser:
@@ -112,9 +95,7 @@ def build_parser() -> OneLineParser:
 
 
 def _refuse_foreign_options(args) -> None:
-    for option, scenarios in SCENARIO_OPTIONS.items():
-        if getattr(args, option) is not None and args.scenario not in scenarios:
-            raise CliError(f"--{option.replace('_', '-')} does not apply to --scenario {args.scenario}")
+    refuse_foreign_scenario_options(args)
     if args.cct and args.scenario != "bus_fault":
         raise CliError("--cct applies to --scenario bus_fault only")
     if args.cct and args.plot:
@@ -122,105 +103,12 @@ def _refuse_foreign_options(args) -> None:
     if args.cct and args.clearing_time is not None:
         raise CliError("--clearing-time does not apply to --cct (it searches the clearing time)")
     if args.delay_margin:
-        for flag in ("cct", "plot", "link_delay"):
-            if getattr(args, flag):
-                raise CliError(f"--delay-margin searches the link's fixed delay and prints a table (and --json): "
-                               f"it takes no --{flag.replace('_', '-')}")
-        args.delay_max = DEFAULT_DELAY_MAX_S if args.delay_max is None else args.delay_max
-        args.delay_step = DELAY_SCAN_STEP_S if args.delay_step is None else args.delay_step
-        if args.delay_step > args.delay_max:
-            raise CliError(f"--delay-step {args.delay_step:g} s is longer than --delay-max {args.delay_max:g} s")
-    for flag in ("delay_max", "delay_step"):
-        if getattr(args, flag) is not None and not args.delay_margin:
-            raise CliError(f"--{flag.replace('_', '-')} applies to --delay-margin only")
-
-
-def _machine_index(net, bus: int) -> int:
-    where = np.flatnonzero(net.gen_bus == bus)
-    if where.size != 1:
-        raise CliError(f"--machine {bus}: no generator at that bus (generators at {', '.join(map(str, net.gen_bus))})")
-    return int(where[0])
-
-
-def _trip(net, values):
-    if values is None:
-        return ()
-    if len(values) not in (2, 3):
-        raise CliError("--trip-line takes FROM TO [CIRCUIT]")
-    return (net.bus_model.branch_index(*values),)
-
-
-def make_scenario(net, args):
-    """The scenario object and a one-line description of it; a factory of bus faults for --cct."""
-    if args.scenario in ("bus_fault", "line_trip"):
-        trip = _trip(net, args.trip_line)
-        trip_text = f", trip {'-'.join(map(str, args.trip_line))}" if trip else ""
-    if args.scenario == "bus_fault":
-        bus = args.fault_bus if args.fault_bus is not None else DEFAULT_FAULT_BUS.get(args.case)
-        if bus is None:
-            raise CliError("--fault-bus is needed for a case file")
-        net.bus_model.bus_index(bus)
-        impedance = complex(args.fault_r or 0.0, args.fault_x or 0.0)
-        clearing = 0.1 if args.clearing_time is None else args.clearing_time
-
-        def factory(clearing_s):
-            return BusFault(net, bus, clearing_s, impedance, trip)
-
-        return factory(clearing), f"bus fault at bus {bus} (Z = {impedance:g} pu), cleared at {clearing:g} s" \
-                                  f"{trip_text}", factory
-    if args.scenario == "line_trip":
-        if not trip:
-            raise CliError("--scenario line_trip needs --trip-line FROM TO [CIRCUIT]")
-        return LineTrip(net, trip), f"line trip{trip_text}", None
-    if args.machine is None:
-        raise CliError(f"--scenario {args.scenario} needs --machine BUS")
-    machines = [_machine_index(net, bus) for bus in args.machine]
-    if args.scenario == "mechanical_step":
-        if len(machines) != 1 or args.step_p_mech is None:
-            raise CliError("--scenario mechanical_step needs one --machine BUS and --step-p-mech PU")
-        duration = math.inf if args.step_duration is None else args.step_duration
-        p_mech = float(net.pu_of_machine(np.full(net.size, args.step_p_mech))[machines[0]])
-        return MechanicalStep(machines[0], p_mech, duration), \
-            f"P_m of {net.names[machines[0]]} to {args.step_p_mech:g} pu for {duration:g} s", None
-    if args.displace is None:
-        raise CliError("--scenario angle_displacement needs --displace RAD")
-    displacement = np.zeros(net.size)
-    displacement[machines] = args.displace
-    return AngleDisplacement(displacement), \
-        f"angles of {', '.join(net.names[i] for i in machines)} displaced by {args.displace:g} rad", None
-
-
-def _num(value, fmt="{:.3f}"):
-    return "-" if value is None else fmt.format(value)
-
-
-def _b_text(b, net) -> str:
-    return "b = inf (unsaturated)" if math.isinf(b) else ("b = 0 (no battery)" if b == 0 else f"b = {b:g} pu")
-
-
-def format_run(outcome, b, reference, net) -> str:
-    """One run's table: the system verdict line, then one row per generator."""
-    verdict = ("in synchronism" if outcome.in_synchronism else f"LOST SYNCHRONISM at {outcome.pole_slip_s:.2f} s") \
-        + (", settled" if outcome.settled else ", not settled")
-    head = f"{_b_text(b, net)}, reference {reference}: {verdict} (max angle spread " \
-           f"{math.degrees(outcome.max_angle_spread_rad):.1f} deg, final COI frequency deviation " \
-           f"{outcome.final_coi_frequency_hz:+.3f} Hz)"
-    header = f"  {'generator':<9} {'in sync':>7} {'settled':>7} {'settle (s)':>10} {'max|P_ST| (pu)':>14} " \
-             f"{'max|P_ST| (MW)':>14} {'last sat (s)':>12}"
-    rows = [head, header, "  " + "-" * (len(header) - 2)]
-    for g in outcome.generators:
-        rows.append(f"  {g.name:<9} {('yes' if g.in_synchronism else 'NO'):>7} {('yes' if g.settled else 'no'):>7} "
-                    f"{_num(g.settling_time_s):>10} {g.max_abs_battery_power_pu:>14.4f} "
-                    f"{g.max_abs_battery_power_mw:>14.1f} {_num(g.last_saturated_s):>12}")
-    return "\n".join(rows)
-
-
-def _json_b(b):
-    return "inf" if math.isinf(b) else b
+        refuse_beside_delay_margin(args, ("cct", "plot", "link_delay"))
+    resolve_delay_span(args)
 
 
 def main(argv=None) -> int:
-    """Entry point of ``nni-simulate --case ...``."""
+    """``nni-simulate --case ...`` (called by :func:`nni_battery_controller.simulate_command.main`)."""
     parser = build_parser()
 
     def body():
@@ -235,16 +123,12 @@ def main(argv=None) -> int:
         title = f"{args.case}: {description}; controller {args.controller_rate:g} Hz"
         result = {"case": args.case, "generators": list(net.names), "mbase_mva": net.mbase_mva.tolist(),
                   "scenario": args.scenario, "description": description, "rate_hz": args.controller_rate}
-        if link.active or args.delay_margin:
-            result["link"] = link.to_json() | ({"delay_s": "searched"} if args.delay_margin else {})
+        result.update(link_json(link, delay_searched=args.delay_margin))
         if args.delay_margin:
             print(f"{args.case}: delay margin, {description}; controller {args.controller_rate:g} Hz; the longest "
                   f"fixed delay from a measurement to its command taking effect (every generator) that keeps every "
                   f"pair of generators within 180 degrees (in synchronism) over {args.duration:g} s")
-            print(delay_search_text(args.delay_step, args.delay_max))
-            if link.active:
-                print(f"on top of the delay: {link.describe()}")
-            print(f"  {'reference':>9} {'b (pu)':>7} {'margin (ms)':>12} {'slips at (ms)':>14} {'runs':>5}  result")
+            print("\n".join(delay_search_lines(args.delay_step, args.delay_max, link, f"  {'reference':>9} ")))
             result.update(delay_margin=[], tolerance_s=DELAY_MARGIN_TOLERANCE_S, scan_step_s=args.delay_step,
                           searched_up_to_s=args.delay_max, duration_s=args.duration,
                           criterion="in synchronism: no pair of generators ever more than 180 degrees apart")
@@ -270,7 +154,7 @@ def main(argv=None) -> int:
                 for b, (cct, bracket, open_top) in zip(args.b, found):
                     text = "none" if cct is None else (f">= {cct:.3f}" if open_top else f"{cct:.3f}")
                     print(f"  {b:>7g} {ref:>9} {text:>9}")
-                    result["cct"].append({"b": _json_b(b), "reference": ref, "cct_s": cct,
+                    result["cct"].append({"b": json_b(b), "reference": ref, "cct_s": cct,
                                           "bracket_s": list(bracket), "at_search_limit": bool(open_top)})
         else:
             print(f"{title}, {args.duration:g} s" + (f"; {link.describe()}" if link.active else ""))
@@ -280,14 +164,12 @@ def main(argv=None) -> int:
                 traj = simulate_network(net, law, scenario, args.b, args.duration, args.controller_rate, link=link)
                 for r, (b, outcome) in enumerate(zip(args.b, assess_network(traj))):
                     print(format_run(outcome, b, ref, net))
-                    result["runs"].append({"b": _json_b(b), "reference": ref, **outcome.to_json()})
-                    plotted.append((f"{_b_text(b, net)}, {ref}", traj, r))
+                    result["runs"].append({"b": json_b(b), "reference": ref, **outcome.to_json()})
+                    plotted.append((f"{limit_words(b)}, {ref}", traj, r))
         elapsed = time.perf_counter() - started
         print(f"({elapsed:.1f} s)")
         if args.json:
-            with atomic_output(args.json) as handle:
-                json.dump(result, handle, indent=2)
-                handle.write("\n")
+            write_json(args.json, result)
             print(f"wrote {args.json}")
         if args.plot:
             plot_network(plotted, title, args.plot)
