@@ -25,32 +25,34 @@ import textwrap
 import time
 from pathlib import Path
 
-from nni_battery_controller.demo import (
-    BRIDGE_WAIT_S,
+from nni_battery_controller.controller_config import parameters as controller_node_parameters
+from nni_battery_controller.demo_common import (
     COMPROMISED_PREFIX,
     TRUST_COUNTERS,
+    check_complete,
     compromised_reasons,
     compromised_words,
-    add_rerun_option,
-    check_complete,
     exit_status,
     finish_plant,
-    given_options,
     logger_counts,
     plant_summary,
-    rerun_sink,
     run_environment,
     software_version,
-    start_viewer,
-    wait_for_interrupt,
     write_summary,
 )
-from nni_battery_controller.controller_config import parameters as controller_node_parameters
+from nni_battery_controller.demo_viewer import (
+    BRIDGE_WAIT_S,
+    add_rerun_option,
+    rerun_sink,
+    start_viewer,
+    wait_for_interrupt,
+)
 from nni_battery_controller.figures import plot_network
 from nni_battery_controller.network_common import (
     DEFAULT_LIMITS,
     add_scenario_options,
     format_run,
+    json_b,
     make_scenario,
     refuse_foreign_scenario_options,
 )
@@ -75,8 +77,8 @@ from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,
     battery_limit,
-    finite_float,
     float_within,
+    given_options,
     positive_float,
     run_cli,
 )
@@ -186,10 +188,6 @@ def check_ranges(node: str, specs, values: dict) -> None:
 
 def b_text(b: float) -> str:
     return "inf" if math.isinf(b) else f"{b:g}"
-
-
-def json_b(b: float):
-    return "inf" if math.isinf(b) else b
 
 
 def run_label(args, b: float) -> str:
@@ -367,7 +365,7 @@ def show_run(args, b: float, env: dict, bridge, index: int, plotted: list) -> di
 
 
 def main(argv=None) -> int:
-    """Entry point of ``nni-demo --case ...`` (called by :func:`nni_battery_controller.demo.main`)."""
+    """``nni-demo --case ...`` (called by :func:`nni_battery_controller.demo_command.main`)."""
 
     def body():
         signal.signal(signal.SIGTERM, signal.default_int_handler)
