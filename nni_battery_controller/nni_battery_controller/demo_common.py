@@ -6,8 +6,8 @@ completeness (the logger's counts against the plant's); whether a run can be
 trusted (the plant's trust counters, the power applied against b) and the
 words that say why not; the children's environment and ROS domain; the
 summary JSON and the exit status. The Rerun viewer is
-:mod:`nni_battery_controller.demo_viewer`'s. No ROS import: the processes are
-started through the project's supervisor.
+:mod:`nni_battery_controller.demo_viewer`'s. A demo creates no ROS node of its
+own: its processes are started through the project's supervisor.
 """
 
 from __future__ import annotations
@@ -29,12 +29,8 @@ from nni_plant_sim.plant_node import SUMMARY_PREFIX
 
 #: Seconds the logger gets after the plant ends, for the last reliable messages to land.
 DRAIN_S = 0.5
-
-
 #: Exit status of a call with a compromised run (the battery commanded by a stranger, or beyond b).
 EXIT_COMPROMISED = 3
-
-
 #: The plant's trust counters (INTERFACES.md item 1) of which any non-zero one compromises a run.
 TRUST_COUNTERS = ("foreign_commands", "unsolicited_commands", "writer_alarms")
 

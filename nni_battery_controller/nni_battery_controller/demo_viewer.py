@@ -4,8 +4,8 @@ The ``--rerun`` option and the sink it names (save to a file, serve a web
 viewer, spawn the native one), the start of the Rerun bridge node (and for
 ``serve`` of the web viewer it streams to), and serving until Ctrl-C. Each
 demo waits for the bridge to have logged its runs itself (what it logs
-differs). No ROS import: the processes are started through the project's
-supervisor.
+differs). The bridge and the viewer are processes of the project's
+supervisor, as every process of a demo.
 """
 
 from __future__ import annotations
@@ -24,8 +24,6 @@ from nni_msgs_adapter.viewing.rerun_view import display_missing
 
 #: Seconds the Rerun bridge gets, once the run's recording is read, to report every one of its samples.
 BRIDGE_WAIT_S = 30.0
-
-
 #: Where the Rerun web viewer of ``--rerun serve`` listens (gRPC proxy, web page).
 SERVE_GRPC_PORT, SERVE_WEB_PORT = 9876, 9090
 
