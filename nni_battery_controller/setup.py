@@ -25,8 +25,8 @@ setup(
         "console_scripts": [
             "controller_node = nni_battery_controller.controller_node:main",
             "composed_controllers = nni_battery_controller.composed_controllers:main",
-            "nni-simulate = nni_battery_controller.cli:main",
-            "nni-demo = nni_battery_controller.demo:main",
+            "nni-simulate = nni_battery_controller.simulate_command:main",
+            "nni-demo = nni_battery_controller.demo_command:main",
         ],
     },
 )

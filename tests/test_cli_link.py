@@ -9,7 +9,8 @@ import pytest
 
 from nni_battery_controller.law import ControllerParams
 from nni_battery_controller.network_sim import NetworkLaw, assess_network, simulate_network
-from nni_battery_controller.simulate import assess, simulate_sampled
+from nni_battery_controller.simulate import simulate_sampled
+from nni_battery_controller.verdicts import assess
 from nni_plant_sim.cases import load_network
 from nni_plant_sim.link import Link
 from nni_plant_sim.model import SmibParams

@@ -15,7 +15,8 @@ import subprocess
 import numpy as np
 import pytest
 
-from nni_battery_controller.simulate import assess, simulate_sampled
+from nni_battery_controller.simulate import simulate_sampled
+from nni_battery_controller.verdicts import assess
 
 JSON_KEYS = {
     "b", "stable", "final_angle_dev_rad", "max_abs_angle_dev_rad", "max_abs_battery_power_pu",

@@ -16,9 +16,9 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from nni_battery_controller.demo import (
+from nni_battery_controller.demo_common import compromised_reasons
+from nni_battery_controller.smib_demo import (
     build_parser,
-    compromised_reasons,
     controller_parameters,
     parse_arguments,
     plant_parameters,

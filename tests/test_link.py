@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from nni_battery_controller.law import ControllerParams, SampledController
-from nni_battery_controller.simulate import delay_margins, simulate_sampled
+from nni_battery_controller.margins import delay_margins
+from nni_battery_controller.simulate import simulate_sampled
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.link import NO_LINK, DelayLine, Link
 from nni_plant_sim.model import SmibParams

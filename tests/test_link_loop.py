@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 
 from nni_battery_controller.law import ControllerParams
+from nni_battery_controller.margins import delay_margins
 from nni_battery_controller.network_sim import NetworkLaw, simulate_network
-from nni_battery_controller.simulate import assess, delay_margins, pole_slip_instant, simulate_sampled
+from nni_battery_controller.simulate import simulate_sampled
+from nni_battery_controller.verdicts import assess, pole_slip_instant
 from nni_msgs_adapter.ros import contract
 from nni_plant_sim.cases import load_network
 from nni_plant_sim.link import Link

@@ -33,7 +33,7 @@ from rclpy.serialization import serialize_message
 from rosgraph_msgs.msg import Clock
 
 from nni_msgs_adapter.ros import contract
-from nni_battery_controller.simulate import Outcome
+from nni_battery_controller.verdicts import Outcome
 from nni_msgs_adapter.recording.mcap_io import MCAP_MAGIC, Ros2McapWriter, deserialize, qos_profiles_yaml, read_messages
 from nni_msgs_adapter.ros.defaults import controller_defaults, logger_defaults, plant_defaults
 from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX

@@ -22,7 +22,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from nni_battery_controller.network_cli import format_run
+from nni_battery_controller.network_common import format_run
 from nni_battery_controller.network_deployment import controller_parameters, default_law, generator_limits
 from nni_battery_controller.network_sim import NetworkLaw, assess_network, simulate_network
 from nni_msgs_adapter.recording.mcap_io import read_recording

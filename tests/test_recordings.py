@@ -25,8 +25,8 @@ import pytest
 from rerun.chunk import RrdReader
 from rosbags.highlevel import AnyReader
 
-from nni_battery_controller.cli import PAPER_BATTERY_LIMITS
-from nni_battery_controller.demo import recording_name
+from nni_battery_controller.options import PAPER_BATTERY_LIMITS
+from nni_battery_controller.smib_demo import recording_name
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.recording.mcap_io import read_messages
 from nni_msgs_adapter.recording.runs import SAMPLE_TOPICS, read_generator_run

@@ -22,7 +22,8 @@ from numpy.testing import assert_allclose
 from scipy.integrate import solve_ivp
 
 from nni_battery_controller.law import ControllerParams, SampledController, q1_matrix
-from nni_battery_controller.simulate import assess, simulate_continuous, simulate_sampled
+from nni_battery_controller.simulate import simulate_continuous, simulate_sampled
+from nni_battery_controller.verdicts import assess
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.scenarios import InitialAngle

@@ -24,7 +24,8 @@ from scipy.integrate import solve_ivp
 
 from rosproc import fresh_domain_id, ros_env
 
-from nni_battery_controller.simulate import simulate_continuous, verdict_text
+from nni_battery_controller.simulate import simulate_continuous
+from nni_battery_controller.verdicts import verdict_text
 from nni_msgs_adapter.viewing.palette import colour_hex
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -270,8 +271,8 @@ def test_figure_title_names_scenario_controller_mode_and_shades_the_fault(tmp_pa
 
 
 def test_figure_legends_and_colours_follow_b_not_order(paper_plant, paper_controller):
-    from nni_battery_controller.cli import runs_figure
-    from nni_battery_controller.simulate import assess
+    from nni_battery_controller.figures import runs_figure
+    from nni_battery_controller.verdicts import assess
     from nni_plant_sim.scenarios import TransferLimitFault
 
     fault = TransferLimitFault(0.0, 0.15)
@@ -305,7 +306,7 @@ def test_roa_figure_shows_the_no_battery_basin_inside_omega(paper_plant, paper_c
     from matplotlib.colors import to_rgb
 
     from nni_battery_controller import roa
-    from nni_battery_controller.cli import roa_figure
+    from nni_battery_controller.figures import roa_figure
 
     grid = roa.RoaGrid(n_angle=40, n_speed=40)
     ctrls = [paper_controller(b) for b in (0.0, 0.2)]

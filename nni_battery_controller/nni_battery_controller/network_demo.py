@@ -25,34 +25,36 @@ import textwrap
 import time
 from pathlib import Path
 
-from nni_battery_controller.demo import (
-    BRIDGE_WAIT_S,
+from nni_battery_controller.controller_config import parameters as controller_node_parameters
+from nni_battery_controller.demo_common import (
     COMPROMISED_PREFIX,
     TRUST_COUNTERS,
+    check_complete,
     compromised_reasons,
     compromised_words,
-    add_rerun_option,
-    check_complete,
     exit_status,
     finish_plant,
-    given_options,
     logger_counts,
     plant_summary,
-    rerun_sink,
     run_environment,
     software_version,
-    start_viewer,
-    wait_for_interrupt,
     write_summary,
 )
-from nni_battery_controller.controller_config import parameters as controller_node_parameters
-from nni_battery_controller.network_cli import (
+from nni_battery_controller.demo_viewer import (
+    BRIDGE_WAIT_S,
+    add_rerun_option,
+    rerun_sink,
+    start_viewer,
+    wait_for_interrupt,
+)
+from nni_battery_controller.figures import plot_network
+from nni_battery_controller.network_common import (
     DEFAULT_LIMITS,
-    SCENARIO_OPTIONS,
     add_scenario_options,
     format_run,
+    json_b,
     make_scenario,
-    plot_network,
+    refuse_foreign_scenario_options,
 )
 from nni_battery_controller.network_deployment import (
     DEPLOYMENTS,
@@ -75,8 +77,8 @@ from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,
     battery_limit,
-    finite_float,
     float_within,
+    given_options,
     positive_float,
     run_cli,
 )
@@ -155,9 +157,7 @@ def parse_arguments(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
     refuse(given_options(argv))
     args = build_parser().parse_args(argv)
-    for option, scenarios in SCENARIO_OPTIONS.items():
-        if getattr(args, option, None) is not None and args.scenario not in scenarios:
-            raise CliError(f"--{option.replace('_', '-')} does not apply to --scenario {args.scenario}")
+    refuse_foreign_scenario_options(args)
     args.net = net = load_network(args.case)
     args.scenario_object, args.description, _ = make_scenario(net, args)
     args.scenario_values = scenario_parameters(net, args.scenario_object, args.trip_line or ())
@@ -188,10 +188,6 @@ def check_ranges(node: str, specs, values: dict) -> None:
 
 def b_text(b: float) -> str:
     return "inf" if math.isinf(b) else f"{b:g}"
-
-
-def json_b(b: float):
-    return "inf" if math.isinf(b) else b
 
 
 def run_label(args, b: float) -> str:
@@ -369,7 +365,7 @@ def show_run(args, b: float, env: dict, bridge, index: int, plotted: list) -> di
 
 
 def main(argv=None) -> int:
-    """Entry point of ``nni-demo --case ...`` (called by :func:`nni_battery_controller.demo.main`)."""
+    """``nni-demo --case ...`` (called by :func:`nni_battery_controller.demo_command.main`)."""
 
     def body():
         signal.signal(signal.SIGTERM, signal.default_int_handler)

@@ -21,9 +21,9 @@ import numpy as np
 import yaml
 
 from nni_battery_controller.controller_config import generator_parameters
-from nni_battery_controller.network_cli import DEFAULT_FAULT_BUS
 from nni_battery_controller.network_sim import NetworkLaw
 from nni_msgs_adapter.ros.defaults import controller_defaults
+from nni_plant_sim.cases import DEFAULT_FAULT_BUS
 from nni_plant_sim.network_scenarios import AngleDisplacement, BusFault, LineTrip, MechanicalStep
 
 #: How a case's controllers run: ``separate``, one controller_node process per generator; ``composed``, all of
@@ -93,7 +93,7 @@ def controller_parameters(net, index: int, limit_pu: float, rate_hz: float, law:
 
 
 def default_fault_bus(case: str) -> int:
-    """The bus a bus fault is at when none is given: as ``nni-simulate --case``'s."""
+    """The bus a bus fault is at when none is given: the case's (``nni-simulate --case`` takes the same)."""
     return DEFAULT_FAULT_BUS[case]
 
 

@@ -1,4 +1,4 @@
-"""Scenario, plant model and gain options shared by ``nni-simulate`` and ``nni-demo``; the link options of ``nni-simulate``.
+"""Scenario, plant model and gain options shared by ``nni-simulate`` and ``nni-demo`` (and their default battery limits, the paper's); the link options of ``nni-simulate``.
 
 One helper adds the same options, with the same names and defaults, to both
 command lines; the defaults are the nodes' own (the package YAML files, read
@@ -27,6 +27,9 @@ from nni_msgs_adapter.ros.defaults import controller_defaults, plant_defaults
 from nni_plant_sim.link import Link
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.scenarios import SCENARIO_FIELDS, SCENARIOS, from_values
+
+#: The paper's battery limits b, pu: the default --b of ``nni-simulate`` and ``nni-demo``.
+PAPER_BATTERY_LIMITS = (0.0, 0.2, 0.3, math.inf)
 
 
 def positive_or_inf(text: str) -> float:

@@ -9,7 +9,7 @@ value) gets one outcome:
   D = 0: the undamped, uncontrolled machine oscillates forever inside Omega);
 * ``SLIPS``: the rotor angle against the infinite bus passed +-pi, |delta| > pi
   (a pole slip as out-of-step protection sees it, the criterion of
-  :func:`nni_battery_controller.simulate.assess`; an initial condition with
+  :func:`nni_battery_controller.verdicts.assess`; an initial condition with
   |delta0| > pi has slipped at t = 0);
 * ``UNDECIDED``: none of these within the horizon (reported, never guessed).
 
@@ -68,7 +68,8 @@ from scipy.optimize import brentq
 
 from nni_battery_controller.closed_loop import LoopParams, closed_loop_rate
 from nni_battery_controller.law import ControllerParams, q1_matrix, saturation_input
-from nni_battery_controller.simulate import POLE_SLIP_RAD, simulate_continuous
+from nni_battery_controller.simulate import simulate_continuous
+from nni_battery_controller.verdicts import POLE_SLIP_RAD
 from nni_plant_sim.integrators import rk4
 from nni_plant_sim.model import (
     SmibParams,

@@ -440,7 +440,7 @@ def info_lines(recording: Recording, runs: dict[str, GeneratorRun], parameters: 
     """What ``--info`` prints: ``ros2 bag info``'s fields, completeness, parameters, verdicts."""
     from nni_msgs_adapter.recording.mcap_io import describe_qos
 
-    from nni_battery_controller.simulate import assess
+    from nni_battery_controller.verdicts import assess
 
     messages = recording.messages
     first, last = messages[0].log_time_ns, messages[-1].log_time_ns
@@ -546,8 +546,8 @@ def describe(args) -> int:
 
 def plot(args) -> int:
     """``--plot OUT.png``: the run's figure, as ``nni-simulate --plot`` draws it, from the recorded samples."""
-    from nni_battery_controller.cli import plot_runs
-    from nni_battery_controller.simulate import assess
+    from nni_battery_controller.figures import plot_runs
+    from nni_battery_controller.verdicts import assess
 
     recording = load(args)
     runs = readable_runs(recording)

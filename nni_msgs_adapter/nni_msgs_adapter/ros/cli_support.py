@@ -7,6 +7,7 @@ a traceback; output files appear whole or not at all. No ROS import.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import sys
@@ -107,10 +108,22 @@ def atomic_output(path: Path, mode: str = "w"):
         raise
 
 
+def write_json(path: Path, content) -> None:
+    """``content`` as indented JSON ending in a newline, written whole or not at all (:func:`atomic_output`)."""
+    with atomic_output(path) as handle:
+        json.dump(content, handle, indent=2)
+        handle.write("\n")
+
+
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def given_options(argv) -> list[str]:
+    """The ``--option`` words of a command line (``--name=value`` as ``--name``)."""
+    return [word.split("=", 1)[0] for word in argv if word.startswith("--")]
 
 
 def run_cli(main_body, prog: str) -> int:

@@ -37,6 +37,9 @@ CASES = {
     "ieee39": ("pypower:case39", "ieee39_machines.csv", 60.0),
     "kundur_ring_52": ("kundur_ring:13", "kundur_two_area_machines.csv", 60.0),
 }
+#: Fault bus of a bus fault when none is given: a load bus of each shipped case (kundur_ring_52: copy 0's bus 7,
+#: as the network plant node's default).
+DEFAULT_FAULT_BUS = {"kundur_two_area": 7, "ieee39": 16, "kundur_ring_52": 7}
 
 _MATRIX = re.compile(r"mpc\.(bus|gen|branch)\s*=\s*\[(.*?)\]\s*;", re.S)
 _BASE = re.compile(r"mpc\.baseMVA\s*=\s*([0-9.eE+-]+)\s*;")

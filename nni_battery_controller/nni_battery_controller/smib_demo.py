@@ -21,52 +21,52 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import signal
-import socket
 import sys
 import time
-import urllib.parse
-from importlib import metadata
 from pathlib import Path
 
-import numpy as np
-
-from nni_battery_controller.cli import PAPER_BATTERY_LIMITS, plot_runs
-from nni_battery_controller.options import add_model_options, resolve_model
-from nni_battery_controller.simulate import Trajectory, assess, verdict_text
+from nni_battery_controller.demo_common import (
+    check_complete,
+    compromised_reasons,
+    compromised_text,
+    exit_status,
+    finish_plant,
+    logger_counts,
+    plant_summary,
+    run_environment,
+    software_version,
+    write_summary,
+)
+from nni_battery_controller.demo_viewer import (
+    BRIDGE_WAIT_S,
+    add_rerun_option,
+    rerun_sink,
+    start_viewer,
+    wait_for_interrupt,
+)
+from nni_battery_controller.figures import plot_runs
+from nni_battery_controller.options import PAPER_BATTERY_LIMITS, add_model_options, resolve_model
+from nni_battery_controller.simulate import Trajectory
+from nni_battery_controller.verdicts import assess, verdict_text
 from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,
-    atomic_output,
     battery_limit,
     float_within,
+    given_options,
     positive_float,
     run_cli,
-    writable_output,
 )
-from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX
 from nni_msgs_adapter.ros.processes import ChildError, Supervisor
 from nni_msgs_adapter.recording.runs import GeneratorRun, read_generator_run, sampled_trajectory
-from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX, READY_TEXT
-from nni_msgs_adapter.viewing.rerun_view import display_missing
+from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX
 from nni_msgs_adapter.ros.defaults import controller_defaults, plant_defaults
 from nni_plant_sim.cases import CASES
-from nni_plant_sim.plant_node import SUMMARY_PREFIX
 from nni_plant_sim.scenarios import SCENARIO_FIELDS
 
-#: Seconds the logger gets after the plant ends, for the last reliable messages to land.
-DRAIN_S = 0.5
-#: Seconds the Rerun bridge gets, once the run's recording is read, to report every one of its samples.
-BRIDGE_WAIT_S = 30.0
-#: Exit status of a call with a compromised run (the battery commanded by a stranger, or beyond b).
-EXIT_COMPROMISED = 3
-#: The plant's trust counters (INTERFACES.md item 1) of which any non-zero one compromises a run.
-TRUST_COUNTERS = ("foreign_commands", "unsolicited_commands", "writer_alarms")
 #: Plant parameters that set up a run without changing its case (the recording name ignores them).
 RUN_CONTROL = frozenset({"mode", "duration_s", "pmu_rate_hz", "wait_for_subscribers"})
-#: Where the Rerun web viewer of ``--rerun serve`` listens (gRPC proxy, web page).
-SERVE_GRPC_PORT, SERVE_WEB_PORT = 9876, 9090
 
 
 def build_parser() -> OneLineParser:
@@ -95,11 +95,6 @@ def build_parser() -> OneLineParser:
 NETWORK_ONLY_OPTIONS = ("--gen-b", "--fault-bus", "--fault-r", "--fault-x", "--trip-line", "--deployment")
 
 
-def given_options(argv) -> list[str]:
-    """The ``--option`` words of a command line (``--name=value`` as ``--name``)."""
-    return [word.split("=", 1)[0] for word in argv if word.startswith("--")]
-
-
 def recording_name(b: float, plant: dict | None = None) -> str:
     """File name of one run's recording: paper_b0.3.mcap for the paper's case, <scenario>_b0.3.mcap otherwise.
 
@@ -126,14 +121,6 @@ def controller_parameters(args, b: float) -> dict:
     return {**args.model.controller_node_parameters(), "battery_limit_pu": b, "sample_rate_hz": args.rate}
 
 
-def software_version() -> str:
-    """Version of the installed nni_battery_controller package."""
-    try:
-        return metadata.version("nni_battery_controller")
-    except metadata.PackageNotFoundError:
-        return "unknown"
-
-
 def run_metadata(args, plant: dict, controller: dict) -> dict:
     """What the logger stores as the recording's ``nni_run`` metadata (INTERFACES.md item 2)."""
     plant_values = {**plant_defaults(), **plant}
@@ -142,161 +129,6 @@ def run_metadata(args, plant: dict, controller: dict) -> dict:
     return {"scenario": {"name": scenario, **options}, "plant": plant_values,
             "controller": {**controller_defaults(), **controller}, "mode": args.mode, "rate_hz": args.rate,
             "software_version": software_version()}
-
-
-
-def add_rerun_option(parser) -> None:
-    """``--rerun`` of the SMIB and the network demo."""
-    parser.add_argument("--rerun", nargs="+", metavar=("SINK", "PATH"), default=None,
-                        help="stream the runs live to Rerun: 'save PATH' (.rrd), 'serve' (web viewer on this "
-                             "machine, kept up until Ctrl-C) or 'spawn' (native viewer, needs a display); default: none")
-
-
-def rerun_sink(words) -> dict:
-    """What ``--rerun`` asks for: save PATH | serve [ADDRESS] | spawn (ADDRESS: where the viewer listens)."""
-    sink, rest = words[0], words[1:]
-    if sink not in ("save", "serve", "spawn") or len(rest) != {"save": 1, "serve": len(rest[:1]), "spawn": 0}[sink]:
-        raise CliError("--rerun takes 'save PATH', 'serve [ADDRESS]' (default 127.0.0.1) or 'spawn'")
-    if sink == "save":
-        try:
-            path = writable_output(rest[0])
-        except argparse.ArgumentTypeError as exc:
-            raise CliError(f"--rerun save: {exc}") from None
-        return {"sink": "save", "path": str(path)}
-    if sink == "spawn" and display_missing():
-        raise CliError("--rerun spawn needs a display (DISPLAY and WAYLAND_DISPLAY are unset): "
-                       "use --rerun save PATH or --rerun serve")
-    if sink == "serve":
-        return {"sink": "serve", "address": rest[0] if rest else "127.0.0.1"}
-    return {"sink": sink}
-
-
-def start_viewer(viewer: Supervisor, sink: dict, f0_hz: float, **network):
-    """Start the Rerun bridge (and for ``serve`` the web viewer it streams to); return the bridge.
-
-    ``network``: the bridge's ``namespaces`` and ``case`` for a network's generators.
-    """
-    params = {**sink, "f0_hz": f0_hz, **network}
-    if sink["sink"] == "serve":
-        # The SDK's own server listens on every interface; the rerun CLI's binds where it is told.
-        host = sink["address"]
-        viewer.start("rerun_viewer", [str(Path(sys.executable).parent / "rerun"), "--serve-web", "--bind", host,
-                                      "--port", str(SERVE_GRPC_PORT), "--web-viewer-port", str(SERVE_WEB_PORT)])
-        proxy = f"rerun+http://{host}:{SERVE_GRPC_PORT}/proxy"
-        params = {"sink": "connect", "url": proxy, "f0_hz": f0_hz, **network}
-        wait_for_port(viewer["rerun_viewer"], host, SERVE_GRPC_PORT)
-        print(f"Rerun web viewer: http://{host}:{SERVE_WEB_PORT}/?url={urllib.parse.quote(proxy, safe='')}",
-              flush=True)
-    bridge = viewer.start_node("rerun_bridge", "nni_msgs_adapter.viewing.rerun_bridge", params)
-    try:
-        bridge.wait_for_line(READY_TEXT, timeout_s=30.0)
-    except ChildError as error:
-        raise CliError(f"the Rerun bridge did not start: {error}") from None
-    return bridge
-
-
-def wait_for_port(child, host: str, port: int, timeout_s: float = 30.0) -> None:
-    """Wait until ``child`` accepts TCP connections on host:port; CliError if it exits or times out."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        try:
-            socket.create_connection((host, port), timeout=0.5).close()
-            return
-        except OSError:
-            if child.poll() is not None or time.monotonic() > deadline:
-                raise CliError(f"the Rerun web viewer did not listen on {host}:{port}: {child.tail()}") from None
-            time.sleep(0.1)
-
-
-def compromised_reasons(plant_summary: dict, run: GeneratorRun, b: float) -> dict:
-    """Why a run cannot be trusted (empty if it can): non-zero trust counters, or |P_ST| applied above b.
-
-    The largest power applied is the plant's own count where it reports one, and
-    in any case the largest ``plant/state`` battery power in the recording.
-    """
-    missing = [key for key in (*TRUST_COUNTERS, "max_abs_applied_power_pu") if key not in plant_summary]
-    if missing:
-        raise CliError(f"the plant's final diagnostics lack {', '.join(missing)}: the run cannot be judged")
-    reasons = {key: int(plant_summary[key]) for key in TRUST_COUNTERS if int(plant_summary[key])}
-    recorded = float(np.max(np.abs(run.battery_power_pu))) if run.battery_power_pu.size else 0.0
-    applied = max(recorded, float(plant_summary["max_abs_applied_power_pu"]))
-    if applied > b + 1e-12:
-        reasons["max_abs_applied_power_pu"] = applied
-    return reasons
-
-
-#: How a compromised run is printed instead of its verdict.
-COMPROMISED_PREFIX = "COMPROMISED (not a valid result): "
-
-
-def compromised_words(b: float, reasons: dict) -> list[str]:
-    """Why a run is compromised, one phrase per reason."""
-    words = []
-    if "max_abs_applied_power_pu" in reasons:
-        words.append(f"|P_ST| {reasons['max_abs_applied_power_pu']:.4f} pu applied, above b = {b:g} pu")
-    return words + [f"{reasons[key]} {key.replace('_', ' ')}" for key in TRUST_COUNTERS if key in reasons]
-
-
-def compromised_text(b: float, reasons: dict) -> str:
-    """One line saying why a run is compromised."""
-    return COMPROMISED_PREFIX + "; ".join(compromised_words(b, reasons))
-
-
-def plant_summary(output: str, prefix: str = SUMMARY_PREFIX) -> dict:
-    """The final diagnostics values the plant printed at exit (the line starting with ``prefix``)."""
-    for line in output.splitlines():
-        if line.startswith(prefix):
-            return json.loads(line[len(prefix):])
-    raise CliError("the plant did not report its final diagnostics")
-
-
-def wait_for_plant(plant, args, label: str, limit_s: float, prefix: str = SUMMARY_PREFIX) -> None:
-    """Wait for the plant's final summary line (``prefix``); on a terminal, show a realtime run's progress."""
-    show = args.mode == "realtime" and sys.stderr.isatty()
-    deadline, started, shown = time.monotonic() + limit_s, None, ""
-    while prefix not in plant.output():
-        if plant.poll() is not None:
-            return
-        if time.monotonic() > deadline:
-            raise CliError(f"the plant did not finish within {limit_s:.0f} s (logs in {plant.log_path.parent})")
-        if show:
-            if started is None and "started in" in plant.output():
-                started = time.monotonic()
-            if started is not None:
-                # Realtime: simulated time runs with the wall clock from the plant's start.
-                elapsed_s = min(time.monotonic() - started, args.duration)
-                text = f"\r  {label} t = {elapsed_s:5.1f} of {args.duration:g} s"
-                if text != shown:
-                    print(text, end="", file=sys.stderr, flush=True)
-                    shown = text
-        time.sleep(0.05)
-    if show:
-        print("\r\033[K", end="", file=sys.stderr, flush=True)
-
-
-def finish_plant(procs, plant, args, label: str, prefix: str = SUMMARY_PREFIX) -> None:
-    """The plant's run to its end (bounded wait), its clean exit, then the drain for the recorders; else CliError."""
-    wait_for_plant(plant, args, label, run_time_limit_s(args), prefix)
-    try:
-        status = plant.wait_exit(procs.grace_s)
-    except ChildError as error:
-        raise CliError(str(error)) from None
-    if status != 0:
-        raise CliError(f"the {plant.name} exited with status {status}: {plant.tail()}")
-    time.sleep(DRAIN_S)
-
-
-def check_complete(recording: Path, recorded: int, sent: int, logs: Path, where: str = "",
-                   what: str = "measurements the plant sent") -> None:
-    """CliError unless the logger recorded every one of ``what`` (``where``: to or from which namespace)."""
-    if recorded < sent:
-        raise CliError(f"the recording {recording} is partial: the logger recorded {recorded} of the {sent} "
-                       f"{what}{where} (logs in {logs})")
-
-
-def run_time_limit_s(args) -> float:
-    """Longest wall time a plant may take for one run (start-up and discovery included)."""
-    return 60.0 + (args.duration if args.mode == "realtime" else args.duration * 2)
 
 
 def wait_for_bridge(bridge, index: int, run: GeneratorRun, logs: Path) -> None:
@@ -392,24 +224,6 @@ def run_all(args, env: dict, bridge=None) -> tuple[list[dict], list[Trajectory]]
     return runs, trajectories
 
 
-def wait_for_interrupt(message: str) -> None:
-    """Print ``message``, then block until Ctrl-C (SIGINT) or SIGTERM (a signal right after the message is caught too)."""
-    try:
-        print(message, flush=True)
-        while True:
-            time.sleep(3600)
-    except KeyboardInterrupt:
-        pass
-
-
-def logger_counts(output: str) -> dict:
-    """The per-topic counts the logger printed at exit."""
-    for line in output.splitlines():
-        if line.startswith(COUNTS_PREFIX):
-            return json.loads(line[len(COUNTS_PREFIX):])["counts"]
-    raise CliError("the logger did not report its message counts")
-
-
 def parse_arguments(parser: OneLineParser, argv=None) -> argparse.Namespace:
     """The command line, with the model, scenario and gains resolved (``args.model``) and validated."""
     args = parser.parse_args(argv)
@@ -418,48 +232,9 @@ def parse_arguments(parser: OneLineParser, argv=None) -> argparse.Namespace:
     return args
 
 
-def run_environment(args) -> tuple[dict, int]:
-    """The children's environment and ROS domain (``--domain-id``, else $ROS_DOMAIN_ID, else 42); ``--out`` made.
-
-    CliError for a domain outside 0..232 or an output folder that cannot be written.
-    """
-    domain = args.domain_id if args.domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
-    if not 0 <= domain <= 232:
-        raise CliError(f"ROS domain id must be within 0..232, got {domain}")
-    args.out.mkdir(parents=True, exist_ok=True)
-    if not os.access(args.out, os.W_OK):
-        raise CliError(f"output folder {args.out} is not writable")
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED="1")
-    return env, domain
-
-
-def write_summary(out: Path, content: dict) -> Path:
-    """``OUT/summary.json`` (written whole or not at all); its path."""
-    summary = out / "summary.json"
-    with atomic_output(summary) as handle:
-        json.dump(content, handle, indent=2)
-        handle.write("\n")
-    return summary
-
-
-def exit_status(prog: str, runs: list[dict], what: str) -> int:
-    """0, or EXIT_COMPROMISED with one line on stderr naming the b of the compromised runs (``what`` was not ...)."""
-    compromised = [run for run in runs if "compromised" in run]
-    if not compromised:
-        return 0
-    limits = ", ".join(str(run["b"]) for run in compromised)
-    print(f"{prog}: error: {len(compromised)} of {len(runs)} run(s) compromised (b = {limits}): {what} not under "
-          "its controller's command alone; see summary.json", file=sys.stderr)
-    return EXIT_COMPROMISED
-
-
 def main(argv=None) -> int:
-    """Entry point of ``nni-demo`` (``--case``: the network demo of :mod:`network_demo`)."""
+    """``nni-demo`` without ``--case`` (called by :func:`nni_battery_controller.demo_command.main`)."""
     words = given_options(sys.argv[1:] if argv is None else argv)
-    if "--case" in words:
-        from nni_battery_controller import network_demo
-
-        return network_demo.main(argv)
     parser = build_parser()
 
     def body():
@@ -487,7 +262,3 @@ def main(argv=None) -> int:
         return exit_status(parser.prog, runs, "the battery was")
 
     return run_cli(body, parser.prog)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -21,48 +21,54 @@ options: nni-simulate --case CASE --help.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
 import time
 
-import numpy as np
-
-from nni_battery_controller.options import add_link_options, add_model_options, given_link_options, link_of, \
-    resolve_model
-from nni_battery_controller.roa import RETURNS, STAYS, STEP_S as ROA_STEP_S, RoaGrid, report, sweep
-from nni_battery_controller.simulate import (
+from nni_battery_controller.figures import plot_runs, roa_figure, save_png
+from nni_battery_controller.margins import (
     CCT_TOLERANCE_S,
     DELAY_MARGIN_TOLERANCE_S,
-    SETTLE_BAND_RAD,
-    assess,
-    critical_clearing_time,
     DELAY_SCAN_STEP_S,
+    critical_clearing_time,
     delay_margins,
     equal_area_clearing_time_s,
-    fastest_rate_per_s,
-    simulate_continuous,
-    simulate_sampled,
-    verdict_text,
 )
+from nni_battery_controller.options import (
+    PAPER_BATTERY_LIMITS,
+    add_link_options,
+    add_model_options,
+    given_link_options,
+    link_of,
+    resolve_model,
+)
+from nni_battery_controller.roa import RETURNS, STEP_S as ROA_STEP_S, RoaGrid, report, sweep
+from nni_battery_controller.simulate import fastest_rate_per_s, simulate_continuous, simulate_sampled
+from nni_battery_controller.study_common import (
+    DEFAULT_DELAY_MAX_S,
+    delay_margin_row,
+    delay_search_lines,
+    link_json,
+    refuse_beside_delay_margin,
+    resolve_delay_span,
+)
+from nni_battery_controller.verdicts import SETTLE_BAND_RAD, assess, verdict_text
 from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,
-    atomic_output,
     battery_limit,
     float_within,
     positive_float,
     run_cli,
     writable_output,
+    write_json,
 )
 from nni_msgs_adapter.ros.defaults import plant_defaults
-from nni_msgs_adapter.viewing.palette import colour_hex
 from nni_plant_sim.link import NO_LINK
-from nni_plant_sim.model import SmibParams, critical_angles_rad, invariant_set_boundary, restoring_power
+from nni_plant_sim.model import SmibParams, restoring_power
 from nni_plant_sim.scenarios import TransferLimitFault
 
-PAPER_BATTERY_LIMITS = (0.0, 0.2, 0.3, math.inf)
 #: Output step of the continuous runs, s (as simulate_continuous's default).
 OUTPUT_STEP_S = 1e-3
 #: Bounds on one command's work, checked before any: samples kept (memory, ~100 B each),
@@ -80,8 +86,6 @@ EXIT_BROKEN_PIPE = 141
 _sampling_rate_hz = float_within(10.0, 10_000.0, "Hz or 'continuous'")
 #: --controller-rate as given for the continuous law (None once the options are resolved; None on the parser: not given).
 CONTINUOUS = "continuous"
-#: --delay-max when not given, s.
-DEFAULT_DELAY_MAX_S = 1.0
 
 
 def controller_rate(text: str):
@@ -220,83 +224,6 @@ def verdict_legend(outcomes) -> str:
             f"{SETTLE_BAND_RAD:g} rad for at least {hold:g} s (half a swing period) at the end; stable: both")
 
 
-def fault_interval(scenario: dict, end_s: float):
-    """``(start, end)`` s of the scenario's disturbance on the run's time axis, or None (cleared before t = 0)."""
-    if scenario["name"] == "transfer_limit_fault":
-        return 0.0, min(scenario["clearing_time_s"], end_s)
-    if scenario["name"] == "mechanical_step":
-        return 0.0, min(scenario["step_duration_s"], end_s)
-    return None
-
-
-def scenario_title(scenario: dict) -> str:
-    """The scenario and its values, for a figure title."""
-    if scenario["name"] == "transfer_limit_fault":
-        return (f"transfer-limit fault: P_max = {scenario['fault_p_max_pu']:g} pu, cleared at "
-                f"{scenario['clearing_time_s']:g} s (shaded)")
-    if scenario["name"] == "mechanical_step":
-        if math.isinf(scenario["step_duration_s"]):
-            return f"mechanical power step to {scenario['step_p_mech_pu']:g} pu for good (the equilibrium moves)"
-        return f"mechanical power step to {scenario['step_p_mech_pu']:g} pu for {scenario['step_duration_s']:g} s (shaded)"
-    return (f"initial angle: delta(0) = {scenario['delta0_rad']:g} rad, delta'(0) = {scenario['speed0_rad_s']:g} "
-            f"rad/s (fault cleared before t = 0)")
-
-
-def runs_figure(trajectories, outcomes, scenario: dict, controller: str, mode: str):
-    """The paper's figures 3 and 4 (angle deviation of every run, battery power for b > 0) as a Figure.
-
-    The title names the scenario (the fault interval shaded), the controller
-    (continuous or its rate) and the mode; each legend entry names b and the
-    run's verdict. One colour per b (:func:`nni_msgs_adapter.palette.colour_hex`).
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(8, 7.5), layout="constrained")
-    FigureCanvasAgg(fig)
-    ax_angle, ax_power = fig.subplots(2, 1, sharex=True)
-    fig.suptitle(f"SMIB with battery control: {scenario_title(scenario)}\n"
-                 f"controller {controller}, {mode}", fontsize=10)
-    for traj, outcome in zip(trajectories, outcomes):
-        b = traj.ctrl.battery_limit_pu
-        name = f"b = {b:g}" if b > 0 else "b = 0 (no battery)"
-        label, color = f"{name}: {verdict_text(outcome)}", colour_hex(b)
-        ax_angle.plot(traj.t_s, traj.angle_dev_rad, label=label, color=color)
-        if b > 0:
-            ax_power.plot(traj.t_s, traj.battery_power_pu, label=name, color=color, drawstyle=(
-                "steps-post" if controller != "continuous" else "default"))
-    end = max(float(traj.t_s[-1]) for traj in trajectories)
-    interval = fault_interval(scenario, end)
-    for ax in (ax_angle, ax_power):
-        if interval is not None and interval[1] > interval[0]:
-            ax.axvspan(*interval, color="red", alpha=0.12, lw=0, label="fault" if ax is ax_angle else None)
-        ax.grid(True, alpha=0.3)
-    ax_angle.set_ylim(-1.5, 3.5)
-    ax_angle.axhline(math.pi - 2 * trajectories[0].plant.delta_bar_rad, color="grey", ls=":", lw=1,
-                     label="unstable equilibrium pi - 2 delta_bar")
-    ax_angle.set_ylabel("angle deviation delta - delta_bar (rad)")
-    ax_angle.set_title("Angle deviation without (b = 0) and with battery control", fontsize=10)
-    ax_angle.legend(loc="upper right", fontsize=8)
-    ax_power.set_ylabel("battery power change P_ST (pu)")
-    ax_power.set_xlabel("time after the fault (s)")
-    ax_power.set_title("Battery power output change", fontsize=10)
-    if any(traj.ctrl.battery_limit_pu > 0 for traj in trajectories):
-        ax_power.legend(loc="upper right", fontsize=8)
-    return fig
-
-
-def save_png(fig, path) -> None:
-    """Write ``fig`` as a PNG (atomically), its title also in the PNG's Title text chunk."""
-    title = fig.get_suptitle()
-    with atomic_output(path, "wb") as handle:
-        fig.savefig(handle, format="png", dpi=120, metadata={"Title": title.replace("\n", "; ")})
-
-
-def plot_runs(trajectories, outcomes, path, scenario: dict, controller: str, mode: str) -> None:
-    """:func:`runs_figure` written to ``path`` as PNG."""
-    save_png(runs_figure(trajectories, outcomes, scenario, controller, mode), path)
-
-
 def run_roa(args, model, plant: SmibParams) -> int:
     """``--roa``: classify the grid for each b, print basin areas, write PREFIX.json and PREFIX.png."""
     if args.controller_rate is not None or model.scenario_name != "initial_angle":
@@ -341,73 +268,10 @@ def run_roa(args, model, plant: SmibParams) -> int:
     marked = (model.plant["delta0_rad"] - plant.delta_bar_rad, model.plant["speed0_rad_s"])
     fig = roa_figure(plant, grid, basins, marked, model.header())
     json_path, png_path = (args.roa.with_name(args.roa.name + suffix) for suffix in (".json", ".png"))
-    with atomic_output(json_path) as handle:
-        json.dump(summary, handle, indent=2)
-        handle.write("\n")
+    write_json(json_path, summary)
     save_png(fig, png_path)
     print(f"wrote {json_path} and {png_path}")
     return 0
-
-
-def roa_figure(plant: SmibParams, grid: RoaGrid, basins, marked_state, model_text: str):
-    """The basins of all b overlaid in the (d0, d0') plane, with Omega and the EAC's critical angles, as a Figure.
-
-    Each basin is filled in its b's colour (the one every figure uses), the
-    largest first so that each smaller one shows as its own band (the basins
-    nest); where a basin only stays in synchronism (no battery, D = 0) it is
-    hatched. Omega is a thin dotted outline drawn over them, so the b = 0
-    basin, which Omega nearly equals, shows through. ``marked_state`` (angle
-    deviation rad, speed rad/s) is starred: the run's --delta0 / --speed0.
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.colors import to_rgb
-    from matplotlib.figure import Figure
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch
-
-    # Cell centres, plus the grid's edges (with the edge cells' outcome) so that fills reach the axes.
-    angles = np.concatenate(([grid.angle_min_rad], grid.angle_centres_rad, [grid.angle_max_rad]))
-    speeds = np.concatenate(([grid.speed_min_rad_s], grid.speed_centres_rad_s, [grid.speed_max_rad_s]))
-    fig = Figure(figsize=(9, 8.5), layout="constrained")
-    FigureCanvasAgg(fig)
-    ax = fig.subplots()
-    handles = []
-    order = sorted(range(len(basins)), key=lambda i: -(basins[i].count(RETURNS) + basins[i].count(STAYS)))
-    for index in order:
-        basin = basins[index]
-        color = colour_hex(basin.b)
-        fill = tuple(0.45 * c + 0.55 for c in to_rgb(color))  # the colour, lightened
-        name = "no battery" if basin.b == 0 else ("unlimited" if math.isinf(basin.b) else "")
-        label = f"b = {basin.b:g}" + (f" ({name})" if name else "")
-        outcome = np.pad(basin.outcome, 1, mode="edge")
-        for code, hatch, words in ((RETURNS, None, "returns to equilibrium"),
-                                   (STAYS, "//", "stays in synchronism, never returns (D = 0: oscillates)")):
-            region = (outcome == code).astype(float)
-            if region.any():
-                ax.contourf(angles, speeds, region, levels=[0.5, 1.5], colors=[fill],
-                            hatches=[hatch])
-                ax.contour(angles, speeds, region, levels=[0.5], colors=[color], linewidths=1.5)
-                handles.append(Patch(facecolor=fill, edgecolor=color, hatch=hatch, label=f"{label}: {words}"))
-    omega = invariant_set_boundary(plant)
-    handles += ax.plot(omega[:, 0], omega[:, 1], color="black", lw=0.8, ls=":",
-                       label="invariant set Omega: W <= c, |d| <= pi - 2 delta_bar")
-    low, high = (angle - plant.delta_bar_rad for angle in critical_angles_rad(plant))
-    handles += ax.plot([low, high], [0.0, 0.0], color="black", lw=3.0, marker="|", markersize=14,
-                       label=f"EAC (at rest, no battery): in synchronism for {low:.3f} < d0 < {high:.3f} rad")
-    handles += ax.plot([marked_state[0]], [marked_state[1]], "k*", markersize=11,
-                       label=f"delta(0) = {marked_state[0] + plant.delta_bar_rad:g} rad, "
-                             f"d'(0) = {marked_state[1]:g} rad/s (--delta0, --speed0)")
-    handles.append(Line2D([], [], ls="none", label="outside every basin: a pole slip (rotor angle passes +-180 deg)"))
-    ax.set_xlim(grid.angle_min_rad, grid.angle_max_rad)
-    ax.set_ylim(grid.speed_min_rad_s, grid.speed_max_rad_s)
-    ax.set_xlabel("initial angle deviation d0 = delta(0) - delta_bar (rad)")
-    ax.set_ylabel("initial speed deviation d0' = omega(0) - omega0 (rad/s)")
-    fig.suptitle("Region of attraction of the battery-controlled generator: controller continuous, offline, "
-                 "x3(0) = 0,\npost-fault network (the fault has cleared at t = 0); "
-                 + model_text.split("; ", 1)[1], fontsize=9)
-    fig.legend(handles=handles, loc="outside lower center", ncol=2, fontsize=8)
-    ax.grid(True, alpha=0.3)
-    return fig
 
 
 def run_cct(args, model, plant: SmibParams) -> int:
@@ -441,12 +305,10 @@ def run_cct(args, model, plant: SmibParams) -> int:
         closed_form = round(equal_area_clearing_time_s(plant), 6)
         print(f"equal-area closed form for b = 0 (bolted fault, D = 0): {closed_form:.4f} s")
     if args.json:
-        with atomic_output(args.json) as handle:
-            json.dump({"cct": [r.to_json() for r in results], "tolerance_s": CCT_TOLERANCE_S,
-                       "duration_s": args.duration, "controller": controller_text(args.controller_rate),
-                       "scenario": {"name": "transfer_limit_fault", "fault_p_max_pu": fault_p_max},
-                       "equal_area_cct_s": closed_form, **link_json(args)}, handle, indent=2)
-            handle.write("\n")
+        write_json(args.json, {"cct": [r.to_json() for r in results], "tolerance_s": CCT_TOLERANCE_S,
+                               "duration_s": args.duration, "controller": controller_text(args.controller_rate),
+                               "scenario": {"name": "transfer_limit_fault", "fault_p_max_pu": fault_p_max},
+                               "equal_area_cct_s": closed_form, **link_json(link_of(args))})
         print(f"wrote {args.json}")
     return 0
 
@@ -485,21 +347,14 @@ def run_time_domain(args, model, plant: SmibParams) -> int:
     if any(o["equilibrium_moved"] for o in outcomes):
         print(permanent_step_note(model, plant))
     if args.json:
-        with atomic_output(args.json) as handle:
-            json.dump({"scenario": model.scenario_values(), "controller": controller_text(args.controller_rate),
-                       "scenarios": outcomes, **link_json(args)}, handle, indent=2)
-            handle.write("\n")
+        write_json(args.json, {"scenario": model.scenario_values(), "controller": controller_text(args.controller_rate),
+                               "scenarios": outcomes, **link_json(link_of(args))})
         print(f"wrote {args.json}")
     if args.plot:
         plot_runs(trajectories, outcomes, args.plot, model.scenario_values(),
                   controller_text(args.controller_rate), "offline")
         print(f"wrote {args.plot}")
     return 0
-
-
-def link_json(args) -> dict:
-    """``{"link": ...}`` for a run through a link, else nothing (the JSON of a run without one is unchanged)."""
-    return {"link": link_of(args).to_json()} if link_of(args).active else {}
 
 
 def run_delay_margin(args, model, plant: SmibParams) -> int:
@@ -512,10 +367,8 @@ def run_delay_margin(args, model, plant: SmibParams) -> int:
     print(f"Delay margin, SMIB, {model.header()}")
     print(f"controller sampled at {rate:g} Hz: the longest fixed delay from a measurement to its command taking "
           f"effect that keeps the rotor angle within +-180 degrees (in synchronism) over {args.duration:g} s")
-    print(delay_search_text(scan_s, args.delay_max))
-    if link.active:
-        print(f"on top of the delay: {link.describe()}")
-    print(f"{'b (pu)':>7} {'margin (ms)':>12} {'slips at (ms)':>14} {'runs':>5}  result")
+    print("\n".join(delay_search_lines(scan_s, args.delay_max, link)))
+
     def in_sync(delay_s, indices):
         return [assess(simulate(plant, ctrls[i], scenario, args.duration, rate, link.with_delay(delay_s)))
                 .in_synchronism for i in indices]
@@ -524,51 +377,28 @@ def run_delay_margin(args, model, plant: SmibParams) -> int:
     for result in results:
         print(delay_margin_row(result))
     if args.json:
-        with atomic_output(args.json) as handle:
-            json.dump({"delay_margin": [r.to_json() for r in results], "tolerance_s": DELAY_MARGIN_TOLERANCE_S,
-                       "scan_step_s": scan_s, "searched_up_to_s": args.delay_max, "duration_s": args.duration, "controller": controller_text(rate),
-                       "scenario": model.scenario_values(), "criterion": "in synchronism: the rotor angle never "
-                       "passed +-180 degrees", "link": link.to_json() | {"delay_s": "searched"}}, handle, indent=2)
-            handle.write("\n")
+        write_json(args.json, {"delay_margin": [r.to_json() for r in results], "tolerance_s": DELAY_MARGIN_TOLERANCE_S,
+                               "scan_step_s": scan_s, "searched_up_to_s": args.delay_max, "duration_s": args.duration,
+                               "controller": controller_text(rate), "scenario": model.scenario_values(),
+                               "criterion": "in synchronism: the rotor angle never passed +-180 degrees",
+                               **link_json(link, delay_searched=True)})
         print(f"wrote {args.json}")
     return 0
-
-
-def delay_search_text(scan_s: float, upper_s: float) -> str:
-    """How the delay margin was searched, for the lines above its table."""
-    return (f"scan from 0 in steps of {scan_s * 1e3:g} ms (--delay-step) up to {upper_s:g} s (--delay-max) until a "
-            f"run slips, then bisection to {DELAY_MARGIN_TOLERANCE_S * 1e3:g} ms; the margin is the first loss "
-            f"(a longer delay may be in synchronism again)")
-
-
-def delay_margin_row(result, prefix: str = "") -> str:
-    """One row of the delay margin table (``prefix``: columns before b)."""
-    margin = "-" if result.margin_s is None or result.slips_s is None else f"{result.margin_s * 1e3:.1f}"
-    slips = "-" if result.slips_s is None else f"{result.slips_s * 1e3:.1f}"
-    return f"{prefix}{result.b:>7g} {margin:>12} {slips:>14} {result.runs:>5}  {result.text()}"
 
 
 def resolve_link_options(args) -> None:
     """The controller rate (--delay-margin: the plant node's by default) and the link options where they apply."""
     continuous_given = args.controller_rate == CONTINUOUS
     if args.delay_margin:
-        for flag in ("roa", "cct", "plot", "link_delay"):
-            if getattr(args, flag):
-                raise CliError(f"--delay-margin searches the link's fixed delay and prints a table (and --json): "
-                               f"it takes no --{flag.replace('_', '-')}")
+        refuse_beside_delay_margin(args, ("roa", "cct", "plot", "link_delay"))
         if continuous_given:
             raise CliError("--delay-margin delays the commands of the sampled-data loop: it takes no "
                            "--controller-rate continuous")
         if args.controller_rate is None:
             args.controller_rate = plant_defaults()["pmu_rate_hz"]
-        args.delay_max = DEFAULT_DELAY_MAX_S if args.delay_max is None else args.delay_max
-        args.delay_step = DELAY_SCAN_STEP_S if args.delay_step is None else args.delay_step
-        if args.delay_step > args.delay_max:
-            raise CliError(f"--delay-step {args.delay_step:g} s is longer than --delay-max {args.delay_max:g} s")
+    resolve_delay_span(args)
+    if args.delay_margin:
         return
-    for flag in ("delay_max", "delay_step"):
-        if getattr(args, flag) is not None:
-            raise CliError(f"--{flag.replace('_', '-')} applies to --delay-margin only")
     if continuous_given:
         args.controller_rate = None
     given = given_link_options(args)
@@ -594,11 +424,7 @@ def apply_mode_defaults(args) -> None:
 
 
 def main(argv=None) -> int:
-    """Entry point of ``nni-simulate`` (``--case``: the network study of :mod:`network_cli`)."""
-    if any(arg == "--case" or arg.startswith("--case=") for arg in (sys.argv[1:] if argv is None else argv)):
-        from nni_battery_controller import network_cli
-
-        return network_cli.main(argv)
+    """``nni-simulate`` without ``--case`` (called by :func:`nni_battery_controller.simulate_command.main`)."""
     parser = build_parser()
 
     def body():
@@ -635,6 +461,3 @@ def main(argv=None) -> int:
             return 130
 
     return run_cli(body, parser.prog)
-
-if __name__ == "__main__":
-    sys.exit(main())

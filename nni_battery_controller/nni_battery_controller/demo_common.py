@@ -1,0 +1,175 @@
+"""What the SMIB demo (``nni-demo``) and the network demo (``nni-demo --case``) share.
+
+A run's plant: waiting for it to finish (a realtime run's progress shown on a
+terminal), its final diagnostics, its clean exit; the recording's
+completeness (the logger's counts against the plant's); whether a run can be
+trusted (the plant's trust counters, the power applied against b) and the
+words that say why not; the children's environment and ROS domain; the
+summary JSON and the exit status. The Rerun viewer is
+:mod:`nni_battery_controller.demo_viewer`'s. A demo creates no ROS node of its
+own: its processes are started through the project's supervisor.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX
+from nni_msgs_adapter.recording.runs import GeneratorRun
+from nni_msgs_adapter.ros.cli_support import CliError, write_json
+from nni_msgs_adapter.ros.processes import ChildError
+from nni_plant_sim.plant_node import SUMMARY_PREFIX
+
+#: Seconds the logger gets after the plant ends, for the last reliable messages to land.
+DRAIN_S = 0.5
+#: Exit status of a call with a compromised run (the battery commanded by a stranger, or beyond b).
+EXIT_COMPROMISED = 3
+#: The plant's trust counters (INTERFACES.md item 1) of which any non-zero one compromises a run.
+TRUST_COUNTERS = ("foreign_commands", "unsolicited_commands", "writer_alarms")
+
+
+def software_version() -> str:
+    """Version of the installed nni_battery_controller package."""
+    try:
+        return metadata.version("nni_battery_controller")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def compromised_reasons(plant_summary: dict, run: GeneratorRun, b: float) -> dict:
+    """Why a run cannot be trusted (empty if it can): non-zero trust counters, or |P_ST| applied above b.
+
+    The largest power applied is the plant's own count where it reports one, and
+    in any case the largest ``plant/state`` battery power in the recording.
+    """
+    missing = [key for key in (*TRUST_COUNTERS, "max_abs_applied_power_pu") if key not in plant_summary]
+    if missing:
+        raise CliError(f"the plant's final diagnostics lack {', '.join(missing)}: the run cannot be judged")
+    reasons = {key: int(plant_summary[key]) for key in TRUST_COUNTERS if int(plant_summary[key])}
+    recorded = float(np.max(np.abs(run.battery_power_pu))) if run.battery_power_pu.size else 0.0
+    applied = max(recorded, float(plant_summary["max_abs_applied_power_pu"]))
+    if applied > b + 1e-12:
+        reasons["max_abs_applied_power_pu"] = applied
+    return reasons
+
+
+#: How a compromised run is printed instead of its verdict.
+COMPROMISED_PREFIX = "COMPROMISED (not a valid result): "
+
+
+def compromised_words(b: float, reasons: dict) -> list[str]:
+    """Why a run is compromised, one phrase per reason."""
+    words = []
+    if "max_abs_applied_power_pu" in reasons:
+        words.append(f"|P_ST| {reasons['max_abs_applied_power_pu']:.4f} pu applied, above b = {b:g} pu")
+    return words + [f"{reasons[key]} {key.replace('_', ' ')}" for key in TRUST_COUNTERS if key in reasons]
+
+
+def compromised_text(b: float, reasons: dict) -> str:
+    """One line saying why a run is compromised."""
+    return COMPROMISED_PREFIX + "; ".join(compromised_words(b, reasons))
+
+
+def plant_summary(output: str, prefix: str = SUMMARY_PREFIX) -> dict:
+    """The final diagnostics values the plant printed at exit (the line starting with ``prefix``)."""
+    for line in output.splitlines():
+        if line.startswith(prefix):
+            return json.loads(line[len(prefix):])
+    raise CliError("the plant did not report its final diagnostics")
+
+
+def wait_for_plant(plant, args, label: str, limit_s: float, prefix: str = SUMMARY_PREFIX) -> None:
+    """Wait for the plant's final summary line (``prefix``); on a terminal, show a realtime run's progress."""
+    show = args.mode == "realtime" and sys.stderr.isatty()
+    deadline, started, shown = time.monotonic() + limit_s, None, ""
+    while prefix not in plant.output():
+        if plant.poll() is not None:
+            return
+        if time.monotonic() > deadline:
+            raise CliError(f"the plant did not finish within {limit_s:.0f} s (logs in {plant.log_path.parent})")
+        if show:
+            if started is None and "started in" in plant.output():
+                started = time.monotonic()
+            if started is not None:
+                # Realtime: simulated time runs with the wall clock from the plant's start.
+                elapsed_s = min(time.monotonic() - started, args.duration)
+                text = f"\r  {label} t = {elapsed_s:5.1f} of {args.duration:g} s"
+                if text != shown:
+                    print(text, end="", file=sys.stderr, flush=True)
+                    shown = text
+        time.sleep(0.05)
+    if show:
+        print("\r\033[K", end="", file=sys.stderr, flush=True)
+
+
+def finish_plant(procs, plant, args, label: str, prefix: str = SUMMARY_PREFIX) -> None:
+    """The plant's run to its end (bounded wait), its clean exit, then the drain for the recorders; else CliError."""
+    wait_for_plant(plant, args, label, run_time_limit_s(args), prefix)
+    try:
+        status = plant.wait_exit(procs.grace_s)
+    except ChildError as error:
+        raise CliError(str(error)) from None
+    if status != 0:
+        raise CliError(f"the {plant.name} exited with status {status}: {plant.tail()}")
+    time.sleep(DRAIN_S)
+
+
+def run_time_limit_s(args) -> float:
+    """Longest wall time a plant may take for one run (start-up and discovery included)."""
+    return 60.0 + (args.duration if args.mode == "realtime" else args.duration * 2)
+
+
+def check_complete(recording: Path, recorded: int, sent: int, logs: Path, where: str = "",
+                   what: str = "measurements the plant sent") -> None:
+    """CliError unless the logger recorded every one of ``what`` (``where``: to or from which namespace)."""
+    if recorded < sent:
+        raise CliError(f"the recording {recording} is partial: the logger recorded {recorded} of the {sent} "
+                       f"{what}{where} (logs in {logs})")
+
+
+def logger_counts(output: str) -> dict:
+    """The per-topic counts the logger printed at exit."""
+    for line in output.splitlines():
+        if line.startswith(COUNTS_PREFIX):
+            return json.loads(line[len(COUNTS_PREFIX):])["counts"]
+    raise CliError("the logger did not report its message counts")
+
+
+def run_environment(args) -> tuple[dict, int]:
+    """The children's environment and ROS domain (``--domain-id``, else $ROS_DOMAIN_ID, else 42); ``--out`` made.
+
+    CliError for a domain outside 0..232 or an output folder that cannot be written.
+    """
+    domain = args.domain_id if args.domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
+    if not 0 <= domain <= 232:
+        raise CliError(f"ROS domain id must be within 0..232, got {domain}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    if not os.access(args.out, os.W_OK):
+        raise CliError(f"output folder {args.out} is not writable")
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED="1")
+    return env, domain
+
+
+def write_summary(out: Path, content: dict) -> Path:
+    """``OUT/summary.json`` (written whole or not at all); its path."""
+    summary = out / "summary.json"
+    write_json(summary, content)
+    return summary
+
+
+def exit_status(prog: str, runs: list[dict], what: str) -> int:
+    """0, or EXIT_COMPROMISED with one line on stderr naming the b of the compromised runs (``what`` was not ...)."""
+    compromised = [run for run in runs if "compromised" in run]
+    if not compromised:
+        return 0
+    limits = ", ".join(str(run["b"]) for run in compromised)
+    print(f"{prog}: error: {len(compromised)} of {len(runs)} run(s) compromised (b = {limits}): {what} not under "
+          "its controller's command alone; see summary.json", file=sys.stderr)
+    return EXIT_COMPROMISED

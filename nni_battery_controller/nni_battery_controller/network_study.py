@@ -1,0 +1,179 @@
+"""``nni-simulate --case ...``: the saturated NNI law at every generator of a network, offline.
+
+Runs one disturbance of a shipped test system (``kundur_two_area``, ``ieee39``)
+or of a MATPOWER case file with its machine data, for each battery limit b
+(pu of each machine's rating, the same at every generator) and each angle
+reference, with the sampled-data H3-hat at every generator; prints one table
+per run with per-generator verdicts, writes JSON and a figure; ``--cct`` finds
+the critical clearing time of the bus fault per b instead, ``--delay-margin``
+the largest fixed measurement-to-command delay that keeps the network in
+synchronism. The runs take a communication link (``--link-*``, the same at
+every generator, the draws its own per generator).
+"""
+
+from __future__ import annotations
+
+import time
+
+from nni_battery_controller.figures import plot_network
+from nni_battery_controller.margins import DELAY_MARGIN_TOLERANCE_S, DELAY_SCAN_STEP_S, delay_margins
+from nni_battery_controller.network_common import (
+    DEFAULT_LIMITS,
+    add_scenario_options,
+    format_run,
+    json_b,
+    limit_words,
+    make_scenario,
+    refuse_foreign_scenario_options,
+)
+from nni_battery_controller.network_sim import (
+    ANGLE_REFERENCES,
+    NetworkLaw,
+    assess_network,
+    critical_clearing_times,
+    simulate_network,
+)
+from nni_battery_controller.options import add_link_options, link_of
+from nni_battery_controller.study_common import (
+    DEFAULT_DELAY_MAX_S,
+    delay_margin_row,
+    delay_search_lines,
+    link_json,
+    refuse_beside_delay_margin,
+    resolve_delay_span,
+)
+from nni_msgs_adapter.ros.cli_support import (
+    CliError,
+    OneLineParser,
+    battery_limit,
+    float_within,
+    positive_float,
+    run_cli,
+    writable_output,
+    write_json,
+)
+from nni_plant_sim.cases import CASES, load_network
+
+
+def build_parser() -> OneLineParser:
+    """The network part of the nni-simulate command line."""
+    parser = OneLineParser(prog="nni-simulate", description=__doc__)
+    parser.add_argument("--case", required=True,
+                        help=f"a shipped case ({', '.join(CASES)}) or a MATPOWER .m file (with --machines, --f0)")
+    parser.add_argument("--machines", help="machine data CSV for a MATPOWER case file (see nni_plant_sim/cases)")
+    parser.add_argument("--f0", type=positive_float, help="nominal frequency, Hz (shipped cases: 60)")
+    add_scenario_options(parser)
+    parser.add_argument("--b", type=battery_limit, nargs="+", default=list(DEFAULT_LIMITS), metavar="B",
+                        help="battery limits, pu of each machine's rating ('inf' allowed); default 0 0.1 0.3 inf")
+    parser.add_argument("--reference", choices=ANGLE_REFERENCES, nargs="+", default=["pmu"],
+                        help="controllers' angle reference: pmu (own angle vs nominal frequency) and/or coi")
+    parser.add_argument("--tau", type=positive_float, nargs="+", default=[0.1], help="tau, s: one or per generator")
+    parser.add_argument("--K", dest="gain_k", type=positive_float, nargs="+", default=[1.0],
+                        help="K, pu of the rating per rad: one or per generator")
+    parser.add_argument("--L", dest="gain_l", type=positive_float, nargs="+", default=[1.1],
+                        help="L, pu of the rating per rad: one or per generator (K < L each)")
+    parser.add_argument("--alpha", type=positive_float, nargs="+", default=[1.0], help="alpha: one or per generator")
+    parser.add_argument("--controller-rate", type=float_within(10.0, 1000.0, "Hz"), default=50.0,
+                        help="PMU / controller rate, Hz (default 50)")
+    parser.add_argument("--duration", type=positive_float, default=10.0, help="simulated seconds (default 10)")
+    parser.add_argument("--cct", action="store_true",
+                        help="critical clearing time of the bus fault per b (bisection to 1 ms), instead of runs")
+    parser.add_argument("--cct-max", type=float_within(0.002, 5.0, "s"), default=1.0,
+                        help="--cct: longest clearing time tried, s (default 1)")
+    parser.add_argument("--delay-margin", action="store_true",
+                        help="the largest fixed measurement-to-command delay (the link's) that keeps the network in "
+                             "synchronism per b and reference, instead of runs: scan by --delay-step up to "
+                             f"--delay-max, then bisection to {DELAY_MARGIN_TOLERANCE_S * 1e3:g} ms")
+    parser.add_argument("--delay-max", type=float_within(1e-3, 10.0, "s"), metavar="S",
+                        help=f"--delay-margin: longest delay tried, s (default {DEFAULT_DELAY_MAX_S:g})")
+    parser.add_argument("--delay-step", type=float_within(1e-3, 10.0, "s"), metavar="S",
+                        help=f"--delay-margin: step of the scan, s (default {DELAY_SCAN_STEP_S:g})")
+    parser.add_argument("--json", type=writable_output, help="write the results as JSON here")
+    parser.add_argument("--plot", type=writable_output, help="write angles, frequencies, battery powers as PNG")
+    add_link_options(parser)
+    return parser
+
+
+def _refuse_foreign_options(args) -> None:
+    refuse_foreign_scenario_options(args)
+    if args.cct and args.scenario != "bus_fault":
+        raise CliError("--cct applies to --scenario bus_fault only")
+    if args.cct and args.plot:
+        raise CliError("--plot does not apply to --cct (it draws time series of runs)")
+    if args.cct and args.clearing_time is not None:
+        raise CliError("--clearing-time does not apply to --cct (it searches the clearing time)")
+    if args.delay_margin:
+        refuse_beside_delay_margin(args, ("cct", "plot", "link_delay"))
+    resolve_delay_span(args)
+
+
+def main(argv=None) -> int:
+    """``nni-simulate --case ...`` (called by :func:`nni_battery_controller.simulate_command.main`)."""
+    parser = build_parser()
+
+    def body():
+        args = parser.parse_args(argv)
+        _refuse_foreign_options(args)
+        started = time.perf_counter()
+        net = load_network(args.case, args.machines, args.f0)
+        scenario, description, factory = make_scenario(net, args)
+        laws = {ref: NetworkLaw.uniform(net, args.tau, args.gain_k, args.gain_l, args.alpha, ref)
+                for ref in args.reference}
+        link = link_of(args)
+        title = f"{args.case}: {description}; controller {args.controller_rate:g} Hz"
+        result = {"case": args.case, "generators": list(net.names), "mbase_mva": net.mbase_mva.tolist(),
+                  "scenario": args.scenario, "description": description, "rate_hz": args.controller_rate}
+        result.update(link_json(link, delay_searched=args.delay_margin))
+        if args.delay_margin:
+            print(f"{args.case}: delay margin, {description}; controller {args.controller_rate:g} Hz; the longest "
+                  f"fixed delay from a measurement to its command taking effect (every generator) that keeps every "
+                  f"pair of generators within 180 degrees (in synchronism) over {args.duration:g} s")
+            print("\n".join(delay_search_lines(args.delay_step, args.delay_max, link, f"  {'reference':>9} ")))
+            result.update(delay_margin=[], tolerance_s=DELAY_MARGIN_TOLERANCE_S, scan_step_s=args.delay_step,
+                          searched_up_to_s=args.delay_max, duration_s=args.duration,
+                          criterion="in synchronism: no pair of generators ever more than 180 degrees apart")
+            for ref, law in laws.items():
+                def in_sync(delay_s, indices, law=law):
+                    traj = simulate_network(net, law, scenario, [args.b[i] for i in indices], args.duration,
+                                            args.controller_rate, drop_lost_runs=True,
+                                            link=link.with_delay(delay_s))
+                    return [outcome.in_synchronism for outcome in assess_network(traj)]
+
+                for margin in delay_margins(in_sync, args.b, args.delay_step, args.delay_max):
+                    print(delay_margin_row(margin, f"  {ref:>9} "), flush=True)
+                    result["delay_margin"].append({"reference": ref, **margin.to_json()})
+        elif args.cct:
+            print(f"{args.case}: critical clearing time of the {description.split(', cleared')[0]}"
+                  f"{', with the trip' if args.trip_line else ''}; {args.duration:g} s runs, controller "
+                  f"{args.controller_rate:g} Hz")
+            print(f"  {'b (pu)':>7} {'reference':>9} {'CCT (s)':>9}")
+            result["cct"] = []
+            for ref, law in laws.items():
+                found = critical_clearing_times(net, law, factory, args.b, args.duration, args.controller_rate,
+                                                high_s=args.cct_max, link=link)
+                for b, (cct, bracket, open_top) in zip(args.b, found):
+                    text = "none" if cct is None else (f">= {cct:.3f}" if open_top else f"{cct:.3f}")
+                    print(f"  {b:>7g} {ref:>9} {text:>9}")
+                    result["cct"].append({"b": json_b(b), "reference": ref, "cct_s": cct,
+                                          "bracket_s": list(bracket), "at_search_limit": bool(open_top)})
+        else:
+            print(f"{title}, {args.duration:g} s" + (f"; {link.describe()}" if link.active else ""))
+            result["runs"] = []
+            plotted = []
+            for ref, law in laws.items():
+                traj = simulate_network(net, law, scenario, args.b, args.duration, args.controller_rate, link=link)
+                for r, (b, outcome) in enumerate(zip(args.b, assess_network(traj))):
+                    print(format_run(outcome, b, ref, net))
+                    result["runs"].append({"b": json_b(b), "reference": ref, **outcome.to_json()})
+                    plotted.append((f"{limit_words(b)}, {ref}", traj, r))
+        elapsed = time.perf_counter() - started
+        print(f"({elapsed:.1f} s)")
+        if args.json:
+            write_json(args.json, result)
+            print(f"wrote {args.json}")
+        if args.plot:
+            plot_network(plotted, title, args.plot)
+            print(f"wrote {args.plot}")
+        return 0
+
+    return run_cli(body, parser.prog)
