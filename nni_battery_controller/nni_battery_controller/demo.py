@@ -49,7 +49,7 @@ from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX
 from nni_msgs_adapter.ros.processes import ChildError, Supervisor
 from nni_msgs_adapter.recording.runs import GeneratorRun, read_generator_run, sampled_trajectory
 from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX, READY_TEXT
-from nni_msgs_adapter.viewing.rerun_view import display_missing
+from nni_msgs_adapter.viewing.rerun_stream import display_missing
 from nni_msgs_adapter.ros.defaults import controller_defaults, plant_defaults
 from nni_plant_sim.cases import CASES
 from nni_plant_sim.plant_node import SUMMARY_PREFIX

@@ -26,7 +26,7 @@ Rerun (no ROS graph; the node module is not even imported)::
 
     nni-replay run.mcap --rrd out.rrd | --connect [URL|PORT] | --spawn
 
-logs every generator of the recording with :func:`rerun_view.log_trajectory`
+logs every generator of the recording with :func:`rerun_trajectory.log_trajectory`
 and the blueprint of the live view: angle deviation, frequency deviation,
 battery power with +-b (b from ``controller/state`` ``battery_limit``), the
 saturation flag, W_hat, and the phase portrait with the recorded boundary of
@@ -235,7 +235,7 @@ def log_recording(stream, runs, f0_hz: float) -> None:
     f0_hz : float
         Nominal frequency, Hz (run parameters only; NaN when the recording does not say).
     """
-    from nni_msgs_adapter.viewing.rerun_view import log_trajectory
+    from nni_msgs_adapter.viewing.rerun_trajectory import log_trajectory
 
     for run in runs:
         answered = run.answered
@@ -252,7 +252,8 @@ def log_network(stream, network) -> None:
     its angle relative to the centre of inertia of every generator's angle at that instant.
     """
     from nni_msgs_adapter.viewing.palette import generator_colour_rgb
-    from nni_msgs_adapter.viewing.rerun_view import NETWORK_VIEW, log_trajectory
+    from nni_msgs_adapter.viewing.rerun_layout import NETWORK_VIEW
+    from nni_msgs_adapter.viewing.rerun_trajectory import log_trajectory
 
     angles = network.coi_angle_rad()
     for i, namespace in enumerate(network.namespaces):
@@ -286,7 +287,8 @@ def convert(args) -> int:
         check_display()
     elif args.connect is not None:
         check_listening(args.connect)
-    from nni_msgs_adapter.viewing.rerun_view import APP_ID, NETWORK_VIEW, blueprint, open_recording, recording_stream
+    from nni_msgs_adapter.viewing.rerun_layout import NETWORK_VIEW, blueprint
+    from nni_msgs_adapter.viewing.rerun_stream import APP_ID, open_recording, recording_stream
 
     if network is None:
         f0_hz = view_f0_hz(args, parameters)
@@ -602,7 +604,7 @@ def check_listening(url: str) -> None:
 
 def check_display() -> None:
     """CliError if a native viewer cannot open a window here."""
-    from nni_msgs_adapter.viewing.rerun_view import display_missing
+    from nni_msgs_adapter.viewing.rerun_stream import display_missing
 
     if display_missing():
         raise CliError("--spawn needs a display (DISPLAY and WAYLAND_DISPLAY are unset): "
