@@ -11,8 +11,8 @@ import math
 import numpy as np
 import rerun as rr
 
-from nni_msgs_adapter.viewing.rerun_layout import PHASE_SEGMENT_SAMPLES, SMIB_VIEW, ViewKind, run_paths
-from nni_msgs_adapter.viewing.rerun_statics import log_run_statics
+from nni_msgs_adapter.viewing.rerun_layout import PHASE_SEGMENT_SAMPLES, SMIB_VIEW, ViewKind
+from nni_msgs_adapter.viewing.rerun_statics import begin_run
 
 
 class LiveLogger:
@@ -62,16 +62,13 @@ class LiveLogger:
         segment_samples: int = PHASE_SEGMENT_SAMPLES,
         kind: ViewKind = SMIB_VIEW,
     ) -> None:
-        if segment_samples < 1:
-            raise ValueError("segment_samples must be >= 1")
         self.recording = recording
-        self.paths = run_paths(label, kind)
+        self.paths = begin_run(recording, label, b, f0_hz, omega_boundary, color, kind, segment_samples)
         self.kind = kind
         self.b = float(b)
         self.timeline = timeline
         self.segment_samples = segment_samples
         self._pending: list[tuple[float, float]] = []
-        log_run_statics(recording, label, self.paths, b, f0_hz, omega_boundary, color, kind)
 
     def log(
         self,

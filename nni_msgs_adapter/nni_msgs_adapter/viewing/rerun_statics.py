@@ -1,7 +1,8 @@
 """What every run logs once, static: line styles and legend names, parameters, Omega and the phase axes (pure core).
 
-Shared by the offline log of a whole run (:mod:`rerun_trajectory`) and the live
-logger (:mod:`rerun_live`), so that both draw a run alike. Each run's colour
+Every run starts with :func:`begin_run`, the offline log of a whole run
+(:mod:`rerun_trajectory`) and the live logger (:mod:`rerun_live`) alike, so that both
+check a run and draw it the same way. Each run's colour
 depends on its battery limit only (:func:`nni_msgs_adapter.viewing.palette.colour_rgb`),
 unless the caller gives one (a network's generators).
 """
@@ -14,7 +15,7 @@ import numpy as np
 import rerun as rr
 
 from nni_msgs_adapter.viewing.palette import colour_rgb
-from nni_msgs_adapter.viewing.rerun_layout import PHASE_PATH, RunPaths, ViewKind
+from nni_msgs_adapter.viewing.rerun_layout import PHASE_PATH, RunPaths, ViewKind, run_paths
 
 _LIMIT_ALPHA = 150
 _OMEGA_COLOR = (200, 200, 200)
@@ -25,17 +26,30 @@ _LINE_WIDTH_PX = 1.5
 _STRIP_RADIUS_PX = 1.0
 
 
-def log_run_statics(
+def begin_run(
     recording: rr.RecordingStream,
     label: str,
-    paths: RunPaths,
     b: float,
     f0_hz: float,
     omega_boundary: np.ndarray | None,
     color: tuple[int, int, int] | None,
     kind: ViewKind,
-) -> None:
-    """Log the static styling, parameters and Omega boundary of a run, and the y-flip (a SMIB run's)."""
+    segment_samples: int,
+) -> RunPaths:
+    """The start of a run, whole or live: its description checked, its statics logged, its entity paths.
+
+    The statics are the run's line styles and legend names, its parameters, the Omega
+    boundary (closed) with the phase axes over it, and the y-flip (a SMIB run's).
+
+    Raises
+    ------
+    ValueError
+        If ``segment_samples < 1``, ``b`` is negative or NaN, or ``omega_boundary`` is not
+        of shape ``(m, 2)`` (or given for a network run).
+    """
+    if segment_samples < 1:
+        raise ValueError("segment_samples must be >= 1")
+    paths = run_paths(label, kind)
     if not b >= 0.0:
         raise ValueError(f"battery limit b must be >= 0 (pu), got {b}")
     if not kind.phase_portrait and omega_boundary is not None:
@@ -82,6 +96,7 @@ def log_run_statics(
         recording.log(path, archetype, static=True)
     if boundary is not None:
         _log_phase_axes(recording, boundary)
+    return paths
 
 
 def _log_phase_axes(recording: rr.RecordingStream, boundary: np.ndarray) -> None:

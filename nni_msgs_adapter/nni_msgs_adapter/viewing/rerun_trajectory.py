@@ -11,8 +11,8 @@ import math
 import numpy as np
 import rerun as rr
 
-from nni_msgs_adapter.viewing.rerun_layout import PHASE_SEGMENT_SAMPLES, SMIB_VIEW, RunPaths, ViewKind, run_paths
-from nni_msgs_adapter.viewing.rerun_statics import log_run_statics
+from nni_msgs_adapter.viewing.rerun_layout import PHASE_SEGMENT_SAMPLES, SMIB_VIEW, RunPaths, ViewKind
+from nni_msgs_adapter.viewing.rerun_statics import begin_run
 
 
 def log_trajectory(
@@ -92,9 +92,8 @@ def log_trajectory(
     if n == 0 or any(x.ndim != 1 or x.size != n for x in series):
         raise ValueError("sample arrays must be 1-D with one common non-zero length")
     t, d, d_dot, power, sat = series[:5]
+    paths = begin_run(recording, label, b, f0_hz, omega_boundary, color, kind, segment_samples)
     last = _segment_ends(n, segment_samples)
-    paths = run_paths(label, kind)
-    log_run_statics(recording, label, paths, b, f0_hz, omega_boundary, color, kind)
 
     time = [rr.TimeColumn(timeline, duration=t)]
     values = {
@@ -143,8 +142,6 @@ def _segment_ends(n: int, segment_samples: int) -> np.ndarray:
     numpy.ndarray
         Increasing sample indices ending with ``n - 1``.
     """
-    if segment_samples < 1:
-        raise ValueError("segment_samples must be >= 1")
     if n == 1:
         return np.array([0])
     return np.minimum(np.arange(segment_samples, n - 1 + segment_samples, segment_samples), n - 1)
