@@ -223,12 +223,8 @@ def convert(args) -> int:
         return 0
     # rerun_bindings raises RuntimeError for a viewer that cannot be reached or started.
     try:
-        if args.connect is not None:
-            stream = recording_stream()
-            stream.connect_grpc(args.connect)
-            stream.send_blueprint(layout)
-        else:
-            stream, _ = open_recording(APP_ID, ("spawn", None), layout=layout)
+        sink = ("connect", args.connect) if args.connect is not None else ("spawn", None)
+        stream, _ = open_recording(APP_ID, sink, layout=layout)
         log(stream)
         stream.flush(timeout_sec=VIEWER_FLUSH_TIMEOUT_S)
     except RuntimeError as error:
