@@ -34,7 +34,12 @@ ROS_SIDE = {
     "nni_msgs_adapter.viewing.rerun_bridge": "a node",
     # Decoding recorded CDR goes through the contract's message conversions.
     "nni_msgs_adapter.recording.runs": "reads recorded messages with the contract",
-    "nni_msgs_adapter.recording.replay": "nni-replay: plays back through replay_node, reads through runs",
+    "nni_msgs_adapter.recording.replay": "nni-replay's entry, on replay_load",
+    "nni_msgs_adapter.recording.replay_load": "what every nni-replay job reads, through runs",
+    "nni_msgs_adapter.recording.replay_ros": "ROS playback through replay_node",
+    "nni_msgs_adapter.recording.replay_info": "--info, on replay_load",
+    "nni_msgs_adapter.recording.replay_plot": "--plot, on replay_load",
+    "nni_msgs_adapter.recording.replay_rerun": "--rrd/--connect/--spawn, on replay_load",
     # The demos start no node of their own, but read the nodes' output lines by the nodes' own constants.
     "nni_battery_controller.demo_command": "nni-demo's entry, dispatching to the demos",
     "nni_battery_controller.demo_common": "the nodes' summary and count line prefixes",
