@@ -2,7 +2,7 @@
 
 One definition read by both ends: the plants' PMU stream
 (:mod:`nni_plant_sim.pmu_stream`), ``nni-replay --pmu-server`` and the PDC
-client node (:mod:`.pdc_node`), so that what one writes the other reads by
+client node (:mod:`.client_node`, through :mod:`.feed`), so that what one writes the other reads by
 the same names.
 
 * One data stream per plant (IDCODE a parameter, default 1), one station per
