@@ -8,6 +8,7 @@ the existing SMIB code, never from the network code itself.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -22,9 +23,16 @@ from nni_battery_controller.network_sim import (
     simulate_network,
 )
 from nni_plant_sim.cases import shipped_text, load_network, read_machines, read_matpower
-from nni_plant_sim.integrators import advance
-from nni_plant_sim.model import SmibParams
-from nni_plant_sim.network import Network, electrical_power, network_acceleration, solve_load_flow
+from nni_plant_sim.integrators import advance, rk4
+from nni_plant_sim.model import SmibParams, plant_rate
+from nni_plant_sim.network import (
+    Coupling,
+    Network,
+    electrical_power,
+    held_network_acceleration,
+    network_acceleration,
+    solve_load_flow,
+)
 from nni_plant_sim.network_scenarios import AngleDisplacement, BusFault
 from nni_plant_sim.scenarios import InitialAngle
 
@@ -94,6 +102,39 @@ def test_smib_is_the_one_generator_case_bit_for_bit():
     network = advance(0.0, 1.0, np.array([[0.2], [0.1]]), 0.05, net,
                       AngleDisplacement(np.array([0.2 - plant.delta_bar_rad])))
     assert_allclose(network[:, 0], smib, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("runs", [None, 1, 3])
+def test_the_held_network_acceleration_and_advance_are_the_general_forms_bit_for_bit(kundur, ieee39, runs):
+    """The written-out swing equations the RK4 calls are network_acceleration to the last bit, and advance() of a
+    network (the plant node's call and the offline batches') is the generic RK4 of plant_rate to the last bit.
+
+    Shapes (2, N), (2, N, 1) (the node) and (2, N, R) (the offline batches); the cases with damping and a fixed
+    source added (the shipped ones have neither, and every term must be in its place); a fault cleared inside
+    the interval (a breakpoint) and the intact network.
+    """
+    rng = np.random.default_rng(7)
+    for case in (kundur, ieee39):
+        n = case.size
+        coupling = Coupling(case.coupling.gc, case.coupling.bs, rng.uniform(-1, 1, n), rng.uniform(0, 2, n))
+        net = replace(case, damping_pu=rng.uniform(0.5, 2.0, n), coupling=coupling)
+        shape = (n,) if runs is None else (n, runs)
+        delta, speed, power = rng.normal(0.0, 2.0, shape), rng.normal(0.0, 3.0, shape), rng.normal(0.0, 0.1, shape)
+        for scenario in (BusFault(net, 7, 0.2), AngleDisplacement(np.zeros(n))):
+            for t_s in (0.0, 0.2):
+                p_mech, in_force = scenario.network(t_s, net)
+                held = held_network_acceleration(net, p_mech, in_force, power, delta)
+                assert held(delta, speed).tolist() == network_acceleration(delta, speed, power, net, p_mech,
+                                                                           in_force).tolist()
+            x = np.stack((net.delta_bar_rad.reshape((n,) + (1,) * (len(shape) - 1)) + delta / 20, speed))
+            got = advance(0.19, 0.21, x, power, net, scenario)
+            state = (x[0], x[1])
+            for start, stop in ((0.19, 0.2), (0.2, 0.21)) if scenario.breakpoints() else ((0.19, 0.21),):
+                steps = round((stop - start) / 1e-3)
+                for _ in range(steps):
+                    state = rk4(plant_rate, start, state, (stop - start) / steps, power,
+                                (net, scenario.network(start, net)))
+            assert got.tolist() == np.array(state).tolist()
 
 
 def test_one_generator_network_controller_is_the_smib_sampled_controller():
