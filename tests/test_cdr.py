@@ -148,3 +148,25 @@ def test_bytes_that_are_no_command_are_a_contract_error(data):
 def test_bytes_that_are_no_measurement_are_a_contract_error(data):
     with pytest.raises(contract.ContractError):
         contract.pmu_from_bytes(data)
+
+
+def test_the_plants_end_of_run_is_read_from_diagnostics_bytes_of_its_own_namespace_only():
+    """plant_run_ended reads /diagnostics bytes: the plant of the controller's namespace says run_ended True there.
+
+    Not another generator's plant (gen11 beside gen1), not a status without it or saying False, not bytes that are
+    no DiagnosticArray; the root namespace's plant is ``plant``.
+    """
+    from rclpy.serialization import serialize_message
+
+    def status(hardware_id: str, name: str, ended) -> bytes:
+        values = {"samples": 500, contract.RUN_ENDED: ended} if ended is not None else {"samples": 500}
+        return serialize_message(contract.diagnostics_message(1, name, hardware_id, "OK", "running", values))
+
+    ended = status("/gen1/plant", "plant", True)
+    assert contract.plant_run_ended(ended, "/gen1")
+    assert not contract.plant_run_ended(ended, "/gen11") and not contract.plant_run_ended(ended, "/")
+    assert not contract.plant_run_ended(status("/gen11/plant", "plant", True), "/gen1")
+    assert not contract.plant_run_ended(status("/gen1/plant", "plant", False), "/gen1")
+    assert not contract.plant_run_ended(status("/gen1/controller", "controller", None), "/gen1")
+    assert contract.plant_run_ended(status("/plant", "plant", True), "/")
+    assert not contract.plant_run_ended(b"gen1/plant True" + bytes(40), "/gen1")

@@ -386,15 +386,27 @@ def diagnostic_values(msg: DiagnosticArray, name: str) -> dict | None:
 RUN_ENDED = "run_ended"
 
 
-def plant_run_ended(msg: DiagnosticArray, namespace: str) -> bool:
-    """The plant of ``namespace`` (``/`` or ``/gen1``, as Node.get_namespace) says here that its run has ended.
+def plant_run_ended(data: bytes, namespace: str) -> bool:
+    """The plant of ``namespace`` (``/`` or ``/gen1``, as Node.get_namespace) says in these ``/diagnostics``
+    bytes that its run has ended (bytes that are no DiagnosticArray say nothing).
 
     Anyone can publish on ``/diagnostics``: a false notice only spares the controller its
     stand-down for the silence that follows it directly (the next measurement cancels it); the
     battery still goes to zero through the plant's own command timeouts.
+
+    Deserialised only when the bytes hold both the status name and ``True`` (CDR strings are
+    their UTF-8 bytes, so a message without either says nothing here): every controller hears
+    every status of the loop, and a composed process of 52 controllers spent 29 % of its time
+    converting them to Python messages (py-spy, kundur_ring_52 in lockstep).
     """
     namespace = namespace.strip("/")
-    values = diagnostic_values(msg, f"{namespace}/plant" if namespace else "plant")
+    name = f"{namespace}/plant" if namespace else "plant"
+    if name.encode() not in data or b"True" not in data:
+        return False
+    try:
+        values = diagnostic_values(_deserialised(data, DiagnosticArray), name)
+    except ContractError:
+        return False
     return values is not None and values.get(RUN_ENDED) == "True"
 
 
