@@ -129,6 +129,8 @@ def test_the_peers_bytes_read_back_in_place_and_any_other_message_through_rclpy(
     assert contract.command_from_bytes(serialize_message(contract.command_message(9, 0.5))) == (9, 0.5)
     two = cdr.joint_state("generator", (contract.ROTOR_JOINT,), (1, 1, 2)).pack(3, 0.1, 0.2, 0.3, 0.4)
     assert contract.pmu_from_bytes(two) == ((3, 0.1, 0.2), (0.3, 0.4))
+    assert contract.clock_from_bytes(cdr.clock().pack(7_000_000_001)) == 7_000_000_001
+    assert contract.clock_from_bytes(serialize_message(Clock(clock=contract.time_from_ns(9)))) == 9
 
 
 @pytest.mark.parametrize("data", [
@@ -148,6 +150,12 @@ def test_bytes_that_are_no_command_are_a_contract_error(data):
 def test_bytes_that_are_no_measurement_are_a_contract_error(data):
     with pytest.raises(contract.ContractError):
         contract.pmu_from_bytes(data)
+
+
+@pytest.mark.parametrize("data", [b"", b"\x00\x01\x00\x00", cdr.clock().pack(1)[:-2]])
+def test_bytes_that_are_no_clock_are_a_contract_error(data):
+    with pytest.raises(contract.ContractError):
+        contract.clock_from_bytes(data)
 
 
 def test_the_plants_end_of_run_is_read_from_diagnostics_bytes_of_its_own_namespace_only():
