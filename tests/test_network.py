@@ -109,32 +109,38 @@ def test_the_held_network_acceleration_and_advance_are_the_general_forms_bit_for
     """The written-out swing equations the RK4 calls are network_acceleration to the last bit, and advance() of a
     network (the plant node's call and the offline batches') is the generic RK4 of plant_rate to the last bit.
 
-    Shapes (2, N), (2, N, 1) (the node) and (2, N, R) (the offline batches); the cases with damping and a fixed
-    source added (the shipped ones have neither, and every term must be in its place); a fault cleared inside
-    the interval (a breakpoint) and the intact network.
+    Shapes (2, N), (2, N, 1) (the node) and (2, N, R) (the offline batches); the shipped cases (no damping, no
+    fixed source: their terms are left out) and the same with damping and a source added (every term must be in
+    its place); a fault cleared inside the interval (a breakpoint) and the intact network.
     """
     rng = np.random.default_rng(7)
     for case in (kundur, ieee39):
         n = case.size
         coupling = Coupling(case.coupling.gc, case.coupling.bs, rng.uniform(-1, 1, n), rng.uniform(0, 2, n))
-        net = replace(case, damping_pu=rng.uniform(0.5, 2.0, n), coupling=coupling)
-        shape = (n,) if runs is None else (n, runs)
-        delta, speed, power = rng.normal(0.0, 2.0, shape), rng.normal(0.0, 3.0, shape), rng.normal(0.0, 0.1, shape)
-        for scenario in (BusFault(net, 7, 0.2), AngleDisplacement(np.zeros(n))):
-            for t_s in (0.0, 0.2):
-                p_mech, in_force = scenario.network(t_s, net)
-                held = held_network_acceleration(net, p_mech, in_force, power, delta)
-                assert held(delta, speed).tolist() == network_acceleration(delta, speed, power, net, p_mech,
-                                                                           in_force).tolist()
-            x = np.stack((net.delta_bar_rad.reshape((n,) + (1,) * (len(shape) - 1)) + delta / 20, speed))
-            got = advance(0.19, 0.21, x, power, net, scenario)
-            state = (x[0], x[1])
-            for start, stop in ((0.19, 0.2), (0.2, 0.21)) if scenario.breakpoints() else ((0.19, 0.21),):
-                steps = round((stop - start) / 1e-3)
-                for _ in range(steps):
-                    state = rk4(plant_rate, start, state, (stop - start) / steps, power,
-                                (net, scenario.network(start, net)))
-            assert got.tolist() == np.array(state).tolist()
+        for net in (case, replace(case, damping_pu=rng.uniform(0.5, 2.0, n), coupling=coupling)):
+            check_held_and_advance(net, rng, runs)
+
+
+def check_held_and_advance(net, rng, runs) -> None:
+    """The two claims of the test above for one network."""
+    n = net.size
+    shape = (n,) if runs is None else (n, runs)
+    delta, speed, power = rng.normal(0.0, 2.0, shape), rng.normal(0.0, 3.0, shape), rng.normal(0.0, 0.1, shape)
+    for scenario in (BusFault(net, 7, 0.2), AngleDisplacement(np.zeros(n))):
+        for t_s in (0.0, 0.2):
+            p_mech, in_force = scenario.network(t_s, net)
+            held = held_network_acceleration(net, p_mech, in_force, power, delta)
+            assert held(delta, speed).tolist() == network_acceleration(delta, speed, power, net, p_mech,
+                                                                       in_force).tolist()
+        x = np.stack((net.delta_bar_rad.reshape((n,) + (1,) * (len(shape) - 1)) + delta / 20, speed))
+        got = advance(0.19, 0.21, x, power, net, scenario)
+        state = (x[0], x[1])
+        for start, stop in ((0.19, 0.2), (0.2, 0.21)) if scenario.breakpoints() else ((0.19, 0.21),):
+            steps = round((stop - start) / 1e-3)
+            for _ in range(steps):
+                state = rk4(plant_rate, start, state, (stop - start) / steps, power,
+                            (net, scenario.network(start, net)))
+        assert got.tolist() == np.array(state).tolist()
 
 
 def test_one_generator_network_controller_is_the_smib_sampled_controller():
