@@ -19,6 +19,7 @@ PURE_MODULES = [
     "nni_plant_sim.scenarios",
     "nni_plant_sim.integrators",
     "nni_plant_sim.network",
+    "nni_plant_sim.network_rk4",
     "nni_plant_sim.network_scenarios",
     "nni_plant_sim.cases",
     "nni_plant_sim.cases.replicated",

@@ -204,8 +204,6 @@ def held_acceleration(plant, p_mech_pu, network_in_force, battery_power_pu, delt
         drive, p_max, damping, inertia, sin = (p_mech_pu + battery_power_pu, network_in_force, plant.damping_pu,
                                                plant.inertia_m, math.sin)
         return lambda delta, speed: (drive - p_max * sin(delta) - damping * speed) / inertia
-    if isinstance(plant, network.Network):
-        return network.held_network_acceleration(plant, p_mech_pu, network_in_force, battery_power_pu, delta_rad)
     acceleration = acceleration_of(plant)
     return lambda delta, speed: acceleration(delta, speed, battery_power_pu, plant, p_mech_pu, network_in_force)
 

@@ -96,47 +96,6 @@ def network_acceleration(delta_rad, speed_rad_s, battery_power_pu, net: "Network
                               net.damping_pu[column], net.inertia_m[column])
 
 
-def held_network_acceleration(net: "Network", p_mech_pu, coupling, battery_power_pu, delta_rad):
-    """:func:`network_acceleration` over a stretch with its powers held: a function ``(delta, speed) -> delta''``.
-
-    What the RK4 calls four times a step (80 times a period at 50 frames/s), written out with what
-    does not change over the stretch bound once: ``P_m + P_ST`` summed, the per-generator columns
-    indexed, the sources stacked, and one buffer for the sines and cosines (no concatenation); a
-    fixed source's terms and the damping's are left out where they are zero (every shipped case
-    has neither), which leaves out additions of exact zeros only. Otherwise the same operations
-    in the same order as :func:`electrical_power` and :func:`swing_acceleration`, so the same
-    result (bit for bit, but for the sign of a zero; tests/test_network.py), in 7 numpy calls a
-    stage instead of about 25 (measured, N = 4 to 52: a 50 frames/s period's RK4 760-900 ->
-    415-570 us). ``delta_rad`` gives the shape, (N,) or (N, R), of every stage's angles. A
-    :class:`Switched` coupling takes the general form.
-    """
-    if isinstance(coupling, Switched):
-        return lambda delta, speed: network_acceleration(delta, speed, battery_power_pu, net, p_mech_pu, coupling)
-    n = net.size
-    column = (slice(None),) + (None,) * (np.ndim(delta_rad) - 1)
-    trig = np.empty((2 * n, *np.shape(delta_rad)[1:]))  # [cos(delta); sin(delta)], overwritten at every stage
-    cosines, sines = trig[:n], trig[n:]
-    block, drive, inertia = coupling.block, p_mech_pu[column] + battery_power_pu, net.inertia_m[column]
-    source = (np.concatenate((coupling.gc_source, coupling.bs_source))[column]
-              if np.any(coupling.gc_source) or np.any(coupling.bs_source) else None)
-    damping = net.damping_pu[column] if np.any(net.damping_pu) else None
-    cos, sin = np.cos, np.sin
-
-    def acceleration(delta, speed):
-        cos(delta, cosines)
-        sin(delta, sines)
-        coupled = trig * (block @ trig)  # c (Gc c - Bs s) and s (Bs c + Gc s): both halves of the double sum
-        p_electrical = coupled[:n] + coupled[n:]
-        if source is not None:
-            sourced = source * trig
-            p_electrical = p_electrical + sourced[:n] + sourced[n:]
-        unbalanced = drive - p_electrical
-        if damping is not None:
-            unbalanced = unbalanced - damping * speed
-        return unbalanced / inertia
-
-    return acceleration
-
 
 @dataclass(frozen=True)
 class Network:
