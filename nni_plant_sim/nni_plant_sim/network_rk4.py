@@ -56,8 +56,21 @@ def _accelerations(delta, speed, columns, sources, which, drive, damping, inerti
 
 
 @numba.njit(cache=True)
+def _stage(delta, speed, rate_delta, rate_speed, factor, stage_delta, stage_speed):
+    """The state at a stage: ``(delta + factor k_delta, speed + factor k_speed)`` into the stage's arrays."""
+    n, runs = delta.shape
+    for i in range(n):
+        for r in range(runs):
+            stage_delta[i, r] = delta[i, r] + factor * rate_delta[i, r]
+            stage_speed[i, r] = speed[i, r] + factor * rate_speed[i, r]
+
+
+@numba.njit(cache=True)
 def _rk4_steps(delta, speed, steps, h, columns, sources, which, drive, damping, inertia):
-    """``steps`` RK4 steps of ``h`` s from (delta, speed), each (N, R); returns the new pair."""
+    """``steps`` RK4 steps of ``h`` s from (delta, speed), each (N, R); returns the new pair.
+
+    Stage k_i = (k_i delta, k_i speed) = (the speed at the stage, its acceleration), as in ``_rk4_swing``.
+    """
     n, runs = delta.shape
     delta, speed = delta.copy(), speed.copy()
     trig, sums = np.empty(2 * n), np.empty(2 * n)
@@ -66,20 +79,11 @@ def _rk4_steps(delta, speed, steps, h, columns, sources, which, drive, damping, 
     half, sixth = 0.5 * h, h / 6.0
     for _ in range(steps):
         _accelerations(delta, speed, columns, sources, which, drive, damping, inertia, trig, sums, k1)
-        for i in range(n):
-            for r in range(runs):
-                stage[i, r] = delta[i, r] + half * speed[i, r]
-                speed2[i, r] = speed[i, r] + half * k1[i, r]
+        _stage(delta, speed, speed, k1, half, stage, speed2)
         _accelerations(stage, speed2, columns, sources, which, drive, damping, inertia, trig, sums, k2)
-        for i in range(n):
-            for r in range(runs):
-                stage[i, r] = delta[i, r] + half * speed2[i, r]
-                speed3[i, r] = speed[i, r] + half * k2[i, r]
+        _stage(delta, speed, speed2, k2, half, stage, speed3)
         _accelerations(stage, speed3, columns, sources, which, drive, damping, inertia, trig, sums, k3)
-        for i in range(n):
-            for r in range(runs):
-                stage[i, r] = delta[i, r] + h * speed3[i, r]
-                speed4[i, r] = speed[i, r] + h * k3[i, r]
+        _stage(delta, speed, speed3, k3, h, stage, speed4)
         _accelerations(stage, speed4, columns, sources, which, drive, damping, inertia, trig, sums, k4)
         for i in range(n):
             for r in range(runs):
