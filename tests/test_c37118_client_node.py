@@ -24,10 +24,11 @@ import pytest
 from c37118_cases import bad_input_stream, data_frame, plant_config
 from nni_battery_controller.controller_config import MEASUREMENT_TOPICS
 from nni_msgs_adapter.c37118 import frames as c37
+from nni_msgs_adapter.c37118 import profile
 from nni_msgs_adapter.c37118.client import PdcSession
 from nni_msgs_adapter.recording.mcap_io import read_messages
 from nni_msgs_adapter.recording.mcap_profile import deserialize
-from nni_msgs_adapter.recording.runs import read_generator_runs
+from nni_msgs_adapter.recording.runs import read_generator_runs, split_topic
 from nni_msgs_adapter.ros import contract
 from rosproc import Probe, fresh_domain_id, node_processes, ros_env, wait_until
 
@@ -138,3 +139,72 @@ def test_bad_input_is_counted_on_diagnostics_and_the_node_survives(tmp_path):
     assert [contract.ns_from_time(msg.header.stamp) for msg in probe.take("c37118/pmu")] == good and len(good) == 7
     log = node.output()
     assert log.count(f"connected to PMU 127.0.0.1:{pmu.port}") == 2 and "went away (closed by the PMU)" in log
+
+
+def run_demo(tmp_path, domain: int, measurements: str, *options: str) -> dict:
+    out = tmp_path / measurements
+    result = subprocess.run([sys.executable, "-m", "nni_battery_controller.demo_command", *options, "--b", "0.3",
+                             "--measurements", measurements, "--domain-id", str(domain), "--out", str(out)],
+                            env=ros_env(domain), capture_output=True, text=True, timeout=400)
+    assert result.returncode == 0, result.stdout + result.stderr
+    if measurements == "c37118":
+        assert "C37.118: connected to PMU 127.0.0.1:" in result.stdout
+    return json.loads((out / "summary.json").read_text())
+
+
+def recording(summary: dict) -> str:
+    runs = summary.get("scenarios") or summary["runs"]
+    return runs[0]["recording"]
+
+
+def measurements_on(path: str, topic: str) -> dict:
+    """``{namespace: (stamps, angles)}`` of a recorded measurement topic."""
+    found: dict = {}
+    for record in read_messages(path):
+        if (split_topic(record.topic) or ("", ""))[1] == topic:
+            msg = deserialize(record.type_name, record.cdr_bytes)
+            stamps, angles = found.setdefault(split_topic(record.topic)[0], ([], []))
+            stamps.append(contract.ns_from_time(msg.header.stamp))
+            angles.append(msg.position[0])
+    return found
+
+
+#: The loop through C37.118 against the ROS-fed one, sample by sample. The angle is float32 on the wire: the law
+#: sees it rounded by at most half an ulp, 2**-25 rad below 1 rad (3e-8; 6e-8 below 2 rad), and answers with
+#: gains of order 1 pu/rad, so a command differs by ~1e-7 pu at a sample; the closed loop is stable (the law is
+#: NNI), so these differences stay of that order instead of growing: 1e-6 rad and pu bound them with a margin
+#: of ten, five orders below anything a verdict can see.
+FLOAT32_LOOP_TOL = 1e-6
+
+
+@pytest.mark.parametrize("options", [("--duration", "3"), ("--case", "kundur_two_area", "--rate", "60", "--duration", "2")],
+                         ids=["smib", "kundur"])
+def test_lockstep_through_c37118_is_the_ros_fed_run_to_float32_precision(tmp_path, options):
+    domain = fresh_domain_id()
+    ros, c37_run = (run_demo(tmp_path, domain, kind, *options) for kind in ("ros", "c37118"))
+    ros_runs, c37_runs = read_generator_runs(recording(ros)), read_generator_runs(recording(c37_run))
+    assert ros_runs.keys() == c37_runs.keys()
+    for namespace, ros_gen in ros_runs.items():
+        c37_gen = c37_runs[namespace]
+        assert np.array_equal(ros_gen.stamp_ns, c37_gen.stamp_ns) and len(ros_gen.stamp_ns) > 90
+        assert np.max(np.abs(ros_gen.delta_rad - c37_gen.delta_rad)) < FLOAT32_LOOP_TOL
+        assert np.max(np.abs(ros_gen.battery_power_pu - c37_gen.battery_power_pu)) < FLOAT32_LOOP_TOL
+        assert np.any(c37_gen.battery_power_pu != ros_gen.battery_power_pu), "the law saw the float32 angle"
+    # The controllers' input: the plant's own measurement rounded to float32, at the plant's own stamps (to the
+    # microsecond of TIME_BASE: at 60 frames/s a period is no whole microsecond).
+    pmu, through = (measurements_on(recording(c37_run), topic)
+                    for topic in (contract.TOPIC_PMU, contract.TOPIC_C37118_PMU))
+    assert pmu.keys() == through.keys() == {ns for ns in ros_runs}
+    for namespace, (stamps, angles) in pmu.items():
+        assert through[namespace][0] == [profile.wire_stamp_ns(stamp, lockstep=True) for stamp in stamps]
+        assert through[namespace][1] == [float(np.float32(angle)) for angle in angles]
+
+
+def test_realtime_through_c37118_gives_the_ros_fed_verdict(tmp_path):
+    domain = fresh_domain_id()
+    runs = [run_demo(tmp_path, domain, kind, "--mode", "realtime", "--duration", "3")["scenarios"][0]
+            for kind in ("ros", "c37118")]
+    verdict = ("stable", "in_synchronism", "settled", "pole_slip_s")
+    assert [{key: run[key] for key in verdict} for run in runs][0] == {key: runs[1][key] for key in verdict}
+    assert runs[1]["measurements"] == "c37118" and runs[1]["dropped_samples"] == 0
+    assert "compromised" not in runs[1]
