@@ -208,3 +208,15 @@ def test_realtime_through_c37118_gives_the_ros_fed_verdict(tmp_path):
     assert [{key: run[key] for key in verdict} for run in runs][0] == {key: runs[1][key] for key in verdict}
     assert runs[1]["measurements"] == "c37118" and runs[1]["dropped_samples"] == 0
     assert "compromised" not in runs[1]
+
+
+@pytest.mark.parametrize("options, reason", [
+    (["--rate", "30"], "--measurements c37118: reporting rate 30 frames/s is not one C37.118 allows at 50 Hz"),
+    (["--case", "kundur_two_area"], "reporting rate 50 frames/s is not one C37.118 allows at 60 Hz"),
+    (["--f0", "55"], "a C37.118 stream needs a nominal frequency of 50 or 60 Hz"),
+])
+def test_the_demo_refuses_a_stream_c37118_cannot_carry_in_one_line(tmp_path, options, reason):
+    result = subprocess.run([sys.executable, "-m", "nni_battery_controller.demo_command", *options, "--measurements",
+                             "c37118", "--out", str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2 and reason in result.stderr and "Traceback" not in result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1, result.stderr

@@ -48,22 +48,30 @@ def check_stream(args, nominal_hz: float) -> None:
         raise CliError(f"--measurements c37118: {error}") from None
 
 
-def plant_parameters(args) -> dict:
-    """The plant's stream parameters (none for ``--measurements ros``)."""
-    if args.measurements != "c37118":
+def plant_parameters(measurements: str, port: int = 0) -> dict:
+    """The plant's stream parameters, on loopback ``port`` (0: a free one); none for measurements ``ros``."""
+    if measurements != "c37118":
         return {}
-    return {"pmu_port": 0, "pmu_host": "127.0.0.1", "pmu_freq_format": "float", "pmu_wait_for_pdcs": 1}
+    return {"pmu_port": port, "pmu_host": "127.0.0.1", "pmu_freq_format": "float", "pmu_wait_for_pdcs": 1}
 
 
-def controller_parameters(args) -> dict:
-    """The controllers' measurement topic (the default, ``pmu``, for ``--measurements ros``)."""
-    return {"measurement_topic": STREAM_TOPIC} if args.measurements == "c37118" else {}
+def controller_parameters(measurements: str) -> dict:
+    """The controllers' measurement topic (the default, ``pmu``, for measurements ``ros``)."""
+    return {"measurement_topic": STREAM_TOPIC} if measurements == "c37118" else {}
 
 
-def plant_readers(args, readers: int, bridge: bool) -> int:
+def plant_readers(measurements: str, readers: int, bridge: bool = False) -> int:
     """The readers the plant waits for on each ``pmu``: ``readers`` (the logger and the controllers) and a Rerun
     bridge; through the stream the controllers read ``c37118/pmu`` instead, and the client waits for them there."""
-    return (1 if args.measurements == "c37118" else readers) + bridge
+    return (1 if measurements == "c37118" else readers) + bridge
+
+
+def client_parameters(port: int, mode: str, readers: int, namespaces=()) -> dict:
+    """The client node's parameters: the stream on loopback ``port``, the plant's ``mode``, station k in the k-th
+    of ``namespaces`` (none: one station, the node's own namespace), connecting once each has ``readers``."""
+    params = {"pmu_host": "127.0.0.1", "pmu_port": port, "mode": mode, "wait_for_subscribers": readers,
+              "max_age_s": controller_defaults()["stamp_tolerance_s"]}
+    return {**params, "namespaces": list(namespaces)} if namespaces else params
 
 
 def start_client(procs, plant, args, readers: int, namespaces=()):
@@ -75,12 +83,8 @@ def start_client(procs, plant, args, readers: int, namespaces=()):
         line = plant.wait_for_line("C37.118 PMU stream", LISTEN_WAIT_S, lambda text: _LISTENING in text)
     except ChildError as error:
         raise CliError(f"the plant's C37.118 stream did not start: {error}") from None
-    host, port = profile.parse_server_address(line.split(_LISTENING, 1)[1].split()[0])
-    params = {"pmu_host": host, "pmu_port": port, "mode": args.mode, "wait_for_subscribers": readers,
-              "max_age_s": controller_defaults()["stamp_tolerance_s"]}
-    if namespaces:
-        params["namespaces"] = list(namespaces)
-    return procs.start_node("c37118_client", CLIENT_MODULE, params)
+    _, port = profile.parse_server_address(line.split(_LISTENING, 1)[1].split()[0])
+    return procs.start_node("c37118_client", CLIENT_MODULE, client_parameters(port, args.mode, readers, namespaces))
 
 
 def wait_connected(client, label: str) -> None:

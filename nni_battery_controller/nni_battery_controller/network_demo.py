@@ -181,15 +181,16 @@ def parse_arguments(argv=None):
 
 def network_plant_parameters(args) -> dict:
     """The network plant's parameters of a run: it waits for each pmu's readers (a Rerun bridge among them)."""
-    readers = demo_c37118.plant_readers(args, pmu_readers(args.net, args.reference), args.rerun is not None)
+    readers = demo_c37118.plant_readers(args.measurements, pmu_readers(args.net, args.reference),
+                                        args.rerun is not None)
     return {**plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration, readers),
-            **demo_c37118.plant_parameters(args)}
+            **demo_c37118.plant_parameters(args.measurements)}
 
 
 def controllers_parameters(args, limits) -> dict:
     """``{absolute namespace: controller parameters}`` of a run whose battery limits are ``limits``."""
     return {f"/{ns}": {**controller_parameters(args.net, i, limits[i], args.rate, args.law),
-                       **demo_c37118.controller_parameters(args)} for i, ns in enumerate(namespaces(args.net))}
+                       **demo_c37118.controller_parameters(args.measurements)} for i, ns in enumerate(namespaces(args.net))}
 
 
 def check_ranges(node: str, specs, values: dict) -> None:

@@ -118,14 +118,15 @@ def plant_parameters(args, with_bridge: bool) -> dict:
     """The plant parameters of one run that differ from the package defaults (or set up the run)."""
     # It waits for the controller and the logger, and for the Rerun bridge when there is one.
     return {**args.model.plant_node_parameters(), "mode": args.mode, "duration_s": args.duration,
-            "pmu_rate_hz": args.rate, "wait_for_subscribers": demo_c37118.plant_readers(args, 2, with_bridge),
-            **demo_c37118.plant_parameters(args)}
+            "pmu_rate_hz": args.rate,
+            "wait_for_subscribers": demo_c37118.plant_readers(args.measurements, 2, with_bridge),
+            **demo_c37118.plant_parameters(args.measurements)}
 
 
 def controller_parameters(args, b: float) -> dict:
     """The controller parameters of one run that differ from the package defaults."""
     return {**args.model.controller_node_parameters(), "battery_limit_pu": b, "sample_rate_hz": args.rate,
-            **demo_c37118.controller_parameters(args)}
+            **demo_c37118.controller_parameters(args.measurements)}
 
 
 def run_metadata(args, plant: dict, controller: dict) -> dict:
