@@ -67,8 +67,9 @@ def plant_readers(measurements: str, readers: int, bridge: bool = False) -> int:
 
 
 def client_parameters(port: int, mode: str, readers: int, namespaces=()) -> dict:
-    """The client node's parameters: the stream on loopback ``port``, the plant's ``mode``, station k in the k-th
-    of ``namespaces`` (none: one station, the node's own namespace), connecting once each has ``readers``."""
+    """The client node's parameters: the stream on loopback ``port``, the plant's ``mode`` (a launch passes its
+    substitutions), station k in the k-th of ``namespaces`` (none: one station, the node's own namespace),
+    connecting once each has ``readers``."""
     params = {"pmu_host": "127.0.0.1", "pmu_port": port, "mode": mode, "wait_for_subscribers": readers,
               "max_age_s": controller_defaults()["stamp_tolerance_s"]}
     return {**params, "namespaces": list(namespaces)} if namespaces else params
