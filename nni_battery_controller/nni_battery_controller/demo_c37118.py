@@ -75,17 +75,17 @@ def client_parameters(port: int, mode: str, readers: int, namespaces=()) -> dict
     return {**params, "namespaces": list(namespaces)} if namespaces else params
 
 
-def start_client(procs, plant, args, readers: int, namespaces=()):
-    """The client node, on the stream ``plant`` says it listens on; it connects once each station's topic has
-    ``readers`` subscribers. None for ``--measurements ros``."""
-    if args.measurements != "c37118":
+def start_client(procs, plant, measurements: str, mode: str, readers: int, namespaces=()):
+    """The client node, on the stream ``plant`` (in ``mode``) says it listens on; it connects once each station's
+    topic has ``readers`` subscribers. None for measurements ``ros``."""
+    if measurements != "c37118":
         return None
     try:
         line = plant.wait_for_line("C37.118 PMU stream", LISTEN_WAIT_S, lambda text: _LISTENING in text)
     except ChildError as error:
         raise CliError(f"the plant's C37.118 stream did not start: {error}") from None
     _, port = profile.parse_server_address(line.split(_LISTENING, 1)[1].split()[0])
-    return procs.start_node("c37118_client", CLIENT_MODULE, client_parameters(port, args.mode, readers, namespaces))
+    return procs.start_node("c37118_client", CLIENT_MODULE, client_parameters(port, mode, readers, namespaces))
 
 
 def wait_connected(client, label: str) -> None:

@@ -303,8 +303,8 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
         started_controllers = start_controllers(procs, controllers, args.deployment)
         wait_for_recorder(logger, spaces, logs)
         plant = procs.start_node("network_plant", PLANT, plant_params)
-        client = demo_c37118.start_client(procs, plant, args, pmu_readers(net, args.reference),
-                                          [f"/{ns}" for ns in spaces])
+        client = demo_c37118.start_client(procs, plant, args.measurements, args.mode,
+                                          pmu_readers(net, args.reference), [f"/{ns}" for ns in spaces])
         demo_c37118.wait_connected(client, run_label(args, b))
         finish_plant(procs, plant, args, run_label(args, b), SUMMARY_PREFIX)
         for controller in started_controllers:

@@ -180,7 +180,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
             "run_metadata": json.dumps(run_metadata(args, plant_params, controller_params))})
         controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params)
         plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params)
-        client = demo_c37118.start_client(procs, plant, args, 2)
+        client = demo_c37118.start_client(procs, plant, args.measurements, args.mode, 2)
         demo_c37118.wait_connected(client, f"b = {b:<5g}")
         finish_plant(procs, plant, args, f"b = {b:<5g}")
         controller.stop()
