@@ -182,5 +182,6 @@ def test_the_profile_section_gives_each_part_its_share_and_its_time_per_loop_sam
     assert "## 7. Where a network lockstep sample's time goes (issue 23)" in text
     assert "**plant** (sampled 1.00 s of its executor thread): 0.50 s of CPU in all threads, 5000 us per loop" in text
     assert f"| publish: N measurements | 60.0 % | {600 / SAMPLING_HZ * 1e6 / 100:.1f} |" in text
+    assert f"The plant's measurement publishes: {600 / SAMPLING_HZ * 1e6 / 100 / 10:.1f} us per message" in text
     assert "## 7. Where a network lockstep sample's time goes (issue 23)\n\n**Not completed**: py-spy failed" in page(
         {"network-profile": {"error": "py-spy failed"}})
