@@ -23,7 +23,9 @@ Each table sets a measurement beside a baseline taken in the same run:
 5. network realtime at 50 frames/s, ieee39's 10 controllers as separate
    processes and composed in one, per generator beside the timed fan-out to
    echoes deployed alike;
-6. memory (and CPU) per controller process and per composed controller.
+6. memory (and CPU) per controller process and per composed controller;
+7. where a network lockstep sample's CPU time goes, per part of the plant's
+   step and of the composed controllers' process (py-spy from outside).
 
 Node processes are started exactly as ``nni-demo`` starts them; discovery stays
 on localhost (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) in a ROS domain of the
@@ -44,6 +46,7 @@ from bench.latency import bench_controller_share, bench_latency
 from bench.lockstep import bench_lockstep
 from bench.machine import machine_description
 from bench.network_lockstep import NETWORK_LOCKSTEP_CASES, NETWORK_LOCKSTEP_QUICK_CASES, bench_network_lockstep
+from bench.network_profile import PROFILE_QUICK_RUN, PROFILE_RUN, bench_network_profile
 from bench.network_realtime import bench_network_realtime
 from bench.report import report
 from bench.roa import bench_roa
@@ -53,7 +56,7 @@ from nni_msgs_adapter.ros.processes import ChildError
 #: duration is split among them.
 ROUNDS = 3
 #: What --only selects (all by default).
-BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime")
+BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime", "network-profile")
 
 
 def parse_args(argv=None):
@@ -92,6 +95,8 @@ def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates) -> dict:
         results["network-realtime"] = bench_network_realtime(
             env, log_root, "kundur_two_area" if quick else "ieee39", NETWORK_RATE_HZ, 5.0 if quick else 30.0,
             1 if quick else ROUNDS)
+    if "network-profile" in only:
+        results["network-profile"] = bench_network_profile(env, log_root, PROFILE_QUICK_RUN if quick else PROFILE_RUN)
     return results
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import resource
 import signal
 import sys
 import time
@@ -66,6 +67,12 @@ def rss_kib(pid: int) -> int:
         if line.startswith("VmRSS:"):
             return int(line.split()[1])
     raise RuntimeError(f"process {pid} shows no VmRSS")
+
+
+def _children_cpu_s() -> float:
+    """User and system CPU time of this process's reaped children so far, s."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def cpu_seconds(pid: int) -> float:
@@ -145,13 +152,15 @@ def closed_loop(env: dict, log_dir: Path, mode: str, rate_hz: float, duration_s:
 
 
 def network_loop(env: dict, log_dir: Path, case: str, mode: str, rate_hz: float, duration_s: float,
-                 deployment: str) -> dict:
+                 deployment: str, attach=None, detach=None) -> dict:
     """The network plant node and one controller per generator, deployed as ``nni-demo --case --deployment``
     deploys them (N processes, or N nodes composed in one: ``network_deployment.start_controllers``), each with
     the parameters ``nni-demo`` gives it (g measured, the controller's default gains).
 
     Returns the plant's summary (``{namespace: values}``) and the controllers'
     resident set sizes, read at the end of the run while they are still up.
+    ``attach(plant_pid, controller_pids)`` is called when the run starts,
+    ``detach()`` when the plant has ended it (a profiler's hooks).
     """
     from nni_battery_controller.network_deployment import (
         controller_parameters,
@@ -173,19 +182,26 @@ def network_loop(env: dict, log_dir: Path, case: str, mode: str, rate_hz: float,
                                  {"case": case, "mode": mode, "duration_s": duration_s, "pmu_rate_hz": rate_hz,
                                   "wait_for_subscribers": 1, "wait_timeout_s": 600.0})
         try:
-            return run_network_plant(plant, controllers, case, mode, net.size, duration_s)
+            return run_network_plant(plant, controllers, case, mode, net.size, duration_s, attach, detach)
         finally:
             stop_together(procs)
 
 
-def run_network_plant(plant, controllers, case: str, mode: str, size: int, duration_s: float) -> dict:
-    """Wait for the plant's run (stopped as partial past its limit); its summary, the controllers' RSS and CPU."""
+def run_network_plant(plant, controllers, case: str, mode: str, size: int, duration_s: float, attach=None,
+                      detach=None) -> dict:
+    """Wait for the plant's run (stopped as partial past its limit); its summary, the controllers' RSS and CPU,
+    the plant's CPU and the run's wall time (``attach``/``detach``: :func:`network_loop`'s)."""
     from nni_plant_sim.network_plant_node import SUMMARY_PREFIX
 
     limit_s = 120.0 + 5.0 * size + duration_s * (1.0 if mode == "realtime" else 4.0)
     started = time.monotonic()
     plant.wait_for_line("started in", limit_s)
     run_started, cpu_started = time.monotonic(), [cpu_seconds(child.pid) for child in controllers]
+    # The plant is reaped when it exits: its CPU over the run is what the children's rusage gains meanwhile,
+    # less what it had spent before the run.
+    plant_cpu_started, children_cpu_started = cpu_seconds(plant.pid), _children_cpu_s()
+    if attach:
+        attach(plant.pid, [child.pid for child in controllers])
     partial = None
     try:
         status = plant.wait_exit(max(1.0, limit_s - (run_started - started)))
@@ -193,15 +209,20 @@ def run_network_plant(plant, controllers, case: str, mode: str, size: int, durat
         partial, status = f"stopped after {limit_s:.0f} s of wall time", None
     run_s = time.monotonic() - run_started
     rss = [rss_kib(child.pid) for child in controllers]
-    cpu = [(cpu_seconds(child.pid) - before) / run_s for child, before in zip(controllers, cpu_started)]
+    cpu_s = [cpu_seconds(child.pid) - before for child, before in zip(controllers, cpu_started)]
     if partial:
         status = plant.stop()  # SIGINT: the plant prints its summary of the run so far
+    plant_cpu_s = _children_cpu_s() - children_cpu_started - plant_cpu_started
+    if detach:
+        detach()
     if status != 0:
         raise RuntimeError(f"network plant ({case}) exited with {status}: {plant.tail(400)}")
     summary = printed_json(plant.output(), SUMMARY_PREFIX)
     if summary is None:
         raise RuntimeError(f"the network plant ({case}) printed no summary")
-    return {"summary": summary, "rss_kib": rss, "cpu_share": cpu, "size": size, "partial": partial}
+    return {"summary": summary, "rss_kib": rss, "cpu_share": [seconds / run_s for seconds in cpu_s],
+            "controller_cpu_s": cpu_s, "plant_cpu_s": plant_cpu_s, "wall_s": run_s, "size": size,
+            "partial": partial}
 
 
 # --- results ------------------------------------------------------------------------------

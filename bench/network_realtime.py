@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.common import median_latency_ms, network_loop, not_completed, percentiles_ms, pingpong, progress
+from bench.common import median_latency_ms, network_loop, not_completed, percentiles_ms, pingpong, progress, verdict
 from nni_msgs_adapter.ros.processes import ChildError
 
 
@@ -97,7 +97,20 @@ def network_realtime_section(result: dict) -> list[str]:
         measurements = sum(g[kind]["measurements"] for g in gens)
         lines.append(f"- {kind}: median p50 {ratio:.2f}x its fan-out's; {measurements} measurements in all, "
                      f"{sum(g[kind]['deadline_misses'] for g in gens)} deadline misses.")
-    return lines + [""] + memory_section(result)
+    return lines + [""] + realtime_targets(result) + memory_section(result)
+
+
+def realtime_targets(result: dict) -> list[str]:
+    """Issue 23's realtime targets: composed, no deadline miss; separate, no more misses than its fan-out floor."""
+    misses = {kind: sum(g[kind]["deadline_misses"] for g in result["generators"]) for kind in result["kinds"]}
+    floor = {kind: sum(g[f"{kind}_floor"]["deadline_misses"] for g in result["generators"]) for kind in result["kinds"]}
+    lines = []
+    if "composed" in misses:
+        lines.append(f"- composed: {misses['composed']} deadline misses = 0: {verdict(misses['composed'] == 0)}.")
+    if "separate" in misses:
+        lines.append(f"- separate: {misses['separate']} deadline misses <= its fan-out floor's {floor['separate']}: "
+                     f"{verdict(misses['separate'] <= floor['separate'])}.")
+    return ["Targets (issue 23, over the rounds together):", ""] + lines + [""]
 
 
 def memory_section(result: dict) -> list[str]:

@@ -6,13 +6,14 @@ from bench.latency import latency_section, share_section
 from bench.lockstep import lockstep_section
 from bench.machine import machine_section
 from bench.network_lockstep import network_lockstep_section
+from bench.network_profile import network_profile_section
 from bench.network_realtime import network_realtime_section
 from bench.roa import roa_section
 
 #: The page's sections in order: the key of a run's results each reports, and the function that writes it.
 SECTIONS = (("latency", latency_section), ("controller-share", share_section), ("lockstep", lockstep_section),
             ("roa", roa_section), ("network-lockstep", network_lockstep_section),
-            ("network-realtime", network_realtime_section))
+            ("network-realtime", network_realtime_section), ("network-profile", network_profile_section))
 
 
 def report(command: str, machine: dict, quick: bool, results: dict, started: str, wall_s: float) -> str:
@@ -20,7 +21,7 @@ def report(command: str, machine: dict, quick: bool, results: dict, started: str
     lines = ["# Benchmarks", "",
              f"Written by `{command}` on {started} (whole run {wall_s:.0f} s of wall time). "
              "Every table sets a measurement beside a baseline taken in the same run; the targets are issue 5's "
-             "(sections 1-3) and issue 14's (sections 4-6).", ""]
+             "(sections 1-3) and issue 23's (sections 4-5; issue 14 built them).", ""]
     if quick:
         lines += ["> **`--quick` run**: shortened durations for development, not the numbers to publish.", ""]
     lines += machine_section(machine)

@@ -83,11 +83,42 @@ def test_the_latency_target_at_100_per_s_is_judged_on_its_p50_ratio(ratio, verdi
     assert f"Targets at 100/s: p50 ratio {ratio:.2f} <= 1.3: {verdict}" in page(results(latency_ratio=ratio))
 
 
-@pytest.mark.parametrize(("ratio", "verdict"), [(1.8, "met."), (2.5, "**not met**.")])
-def test_the_network_target_is_judged_at_ten_generators(ratio, verdict):
-    text = page(results(network_ratio=ratio))
-    assert f"Target at N = 10 (separate): within 2x of the floor ({ratio:.2f}): {verdict}" in text
+@pytest.mark.parametrize(("ratio", "worst", "verdict"), [(1.4, 1.9, "met."), (1.6, 1.6, "**not met**."),
+                                                       (1.4, 2.1, "**not met**.")])
+def test_the_network_targets_judge_the_median_round_and_the_worst(ratio, worst, verdict):
+    run = results(network_ratio=ratio)
+    run["network-lockstep"][-1]["round_ratios"] = [ratio, ratio, worst]
+    text = page(run)
+    assert (f"- N = 10 (separate): floor / throughput {ratio:.2f} (median) <= 1.5, its worst round {worst:.2f} "
+            f"<= 2: {verdict}") in text
+    assert "- N = 4 (separate): floor / throughput 1.50 (median) <= 1.5, its worst round 1.50 <= 2: met." in text
+    assert "- N = 4 (composed): not measured in this run." in text
     assert "Cost per added generator, separate (least-squares slope over N = 4, 10)" in text
+
+
+@pytest.mark.parametrize(("throughput", "turnaround", "verdict"), [(3.2, 0.4, "met."), (2.9, 0.6, "**not met**.")])
+def test_the_ring_and_the_turnaround_targets(throughput, turnaround, verdict):
+    run = results()
+    ring = network_row("kundur_ring_52", 52, "composed", 1.4)
+    ring["throughput"] = throughput
+    run["network-lockstep"].append(ring)
+    run["network-lockstep"][2]["turnaround_ms"] = {"p50": turnaround, "p99": 1.0}
+    text = page(run)
+    assert f"- N = 52 (composed): {throughput:.1f}x real time >= 3: {verdict}" in text
+    assert f"- N = 10 (separate): the plant's turnaround p50 {turnaround:.3f} ms <= 0.5 ms: {verdict}" in text
+
+
+@pytest.mark.parametrize(("composed", "separate", "floor", "verdicts"),
+                         [(0, 3, 3, ("met.", "met.")), (1, 4, 3, ("**not met**.", "**not met**."))])
+def test_the_realtime_targets_count_misses_against_zero_and_the_floor(composed, separate, floor, verdicts):
+    run = results()
+    gens = run["network-realtime"]["generators"]
+    gens[0]["composed"] = {**gens[0]["composed"], "deadline_misses": composed}
+    gens[0]["separate"] = {**gens[0]["separate"], "deadline_misses": separate}
+    gens[0]["separate_floor"] = {**gens[0]["separate_floor"], "deadline_misses": floor}
+    text = page(run)
+    assert f"- composed: {composed} deadline misses = 0: {verdicts[0]}" in text
+    assert f"- separate: {separate} deadline misses <= its fan-out floor's {floor}: {verdicts[1]}" in text
 
 
 def test_a_benchmark_that_could_not_complete_is_reported_with_its_error_beside_the_rows_that_did():
@@ -107,3 +138,50 @@ def test_a_loaded_machine_and_a_quick_run_are_flagged():
     loaded = {**MACHINE, "load_average_at_start": (1.5, 1.0, 1.0)}
     assert "Measured on a loaded machine" in page(results(), loaded)
     assert "> **`--quick` run**" in page(results(), quick=True)
+
+
+PLANT_STACKS = """\
+<module> (nni_plant_sim/network_plant_node.py:86);run_node (nni_msgs_adapter/ros/node_main.py:164) 50
+run_node (nni_msgs_adapter/ros/node_main.py:164);PlantNodeBase._on_command (nni_plant_sim/plant_node_base.py:209);\
+NetworkPlantNode._integrate (nni_plant_sim/network_plant_node.py:70);rk4_network (nni_plant_sim/network_rk4.py:116) 7
+run_node (nni_msgs_adapter/ros/node_main.py:164);PlantNodeBase._publish (nni_plant_sim/plant_node_base.py:{pmu});\
+StampedPublisher.publish (nni_msgs_adapter/ros/loop_node.py:27);Publisher.publish (rclpy/publisher.py:72) 30
+run_node (nni_msgs_adapter/ros/node_main.py:164);PlantNodeBase._publish (nni_plant_sim/plant_node_base.py:{clock});\
+StampedPublisher.publish (nni_msgs_adapter/ros/loop_node.py:27) 3
+ 400
+Node.destroy_node (rclpy/node.py:1965) 2
+"""
+
+
+def _line_of(path: str, text: str) -> int:
+    from pathlib import Path
+
+    import nni_plant_sim
+    lines = (Path(nni_plant_sim.__file__).parent / path).read_text().splitlines()
+    return next(number for number, line in enumerate(lines, 1) if text in line)
+
+
+def test_the_profile_sorts_each_sample_into_its_part_by_its_frames_and_the_source_line_they_run():
+    from bench.network_profile import EXECUTOR, PLANT_PARTS, classify
+
+    stacks = PLANT_STACKS.format(pmu=_line_of("plant_node_base.py", "pub.publish(sample.stamp_ns"),
+                                 clock=_line_of("plant_node_base.py", "self._clock_pub.publish("))
+    counts = classify(stacks, PLANT_PARTS)
+    assert counts == {EXECUTOR: 50, "RK4 over the machines and the network solve": 7, "publish: N measurements": 30,
+                      "publish: /clock": 3, "other": 2}  # the thread with no Python frame is left out
+
+
+def test_the_profile_section_gives_each_part_its_share_and_its_time_per_loop_sample():
+    from bench.network_profile import SAMPLING_HZ
+
+    parts = [("publish: N measurements", 600), ("executor (waiting, or its C++ dispatch)", 400)]
+    profile = {"case": "ieee39", "deployment": "composed", "sim_s": 2.0, "rate_hz": 50.0, "loop_samples": 100,
+               "wall_s": 1.0, "size": 10, "turnaround_ms": 0.4,
+               "processes": [{"process": "plant", "cpu_s": 0.5, "samples_seen": 1000, "parts": parts}]}
+    text = page({"network-profile": profile})
+    assert "## 7. Where a network lockstep sample's time goes (issue 23)" in text
+    assert "**plant** (sampled 1.00 s of its executor thread): 0.50 s of CPU in all threads, 5000 us per loop" in text
+    assert f"| publish: N measurements | 60.0 % | {600 / SAMPLING_HZ * 1e6 / 100:.1f} |" in text
+    assert f"The plant's measurement publishes: {600 / SAMPLING_HZ * 1e6 / 100 / 10:.1f} us per message" in text
+    assert "## 7. Where a network lockstep sample's time goes (issue 23)\n\n**Not completed**: py-spy failed" in page(
+        {"network-profile": {"error": "py-spy failed"}})
