@@ -42,6 +42,7 @@ import time
 from pathlib import Path
 
 from bench.common import NETWORK_RATE_HZ, ROOT
+from bench.c37118_loop import bench_c37118_loop
 from bench.latency import bench_controller_share, bench_latency
 from bench.lockstep import bench_lockstep
 from bench.machine import machine_description
@@ -56,7 +57,7 @@ from nni_msgs_adapter.ros.processes import ChildError
 #: duration is split among them.
 ROUNDS = 3
 #: What --only selects (all by default).
-BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime", "network-profile")
+BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime", "network-profile", "c37118-loop")
 
 
 def parse_args(argv=None):
@@ -97,6 +98,8 @@ def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates) -> dict:
             1 if quick else ROUNDS)
     if "network-profile" in only:
         results["network-profile"] = bench_network_profile(env, log_root, PROFILE_QUICK_RUN if quick else PROFILE_RUN)
+    if "c37118-loop" in only:
+        results["c37118-loop"] = bench_c37118_loop(env, log_root, 50.0, duration_s, ROUNDS)
     return results
 
 

@@ -118,21 +118,29 @@ def pingpong(env: dict, log_dir: Path, mode: str, rate_hz: float = 100.0, durati
     return {**result, "echo_rss_kib": echo_rss}
 
 
-def closed_loop(env: dict, log_dir: Path, mode: str, rate_hz: float, duration_s: float) -> dict:
+def closed_loop(env: dict, log_dir: Path, mode: str, rate_hz: float, duration_s: float,
+                measurements: str = "ros") -> dict:
     """Plant and controller nodes as ``nni-demo`` starts them; the plant's final diagnostics values.
 
+    ``measurements`` c37118: the controller fed through the plant's C37.118 stream and the client node, as
+    ``nni-demo --measurements c37118`` feeds it (the plant waits for the client, not for a pmu reader).
     Read from the JSON line the plant prints at exit, not over DDS: a listener in
     this process had to discover every new plant before its run ended, and
     after a short lockstep run (0.2 s) it sometimes had not (measured).
     """
+    from nni_battery_controller import demo_c37118
     from nni_plant_sim.plant_node import SUMMARY_PREFIX
 
     with children(env, log_dir) as procs:
         procs.start_node("controller", "nni_battery_controller.controller_node",
-                         {"battery_limit_pu": LOOP_BATTERY_LIMIT_PU, "sample_rate_hz": rate_hz})
+                         {"battery_limit_pu": LOOP_BATTERY_LIMIT_PU, "sample_rate_hz": rate_hz,
+                          **demo_c37118.controller_parameters(measurements)})
         procs.start_node("plant", "nni_plant_sim.plant_node",
                          {"mode": mode, "duration_s": duration_s, "pmu_rate_hz": rate_hz,
-                          "wait_for_subscribers": 1})
+                          # the controller on pmu; through the stream nobody reads pmu: the plant waits for the client
+                          "wait_for_subscribers": 0 if measurements == "c37118" else 1,
+                          **demo_c37118.plant_parameters(measurements)})
+        demo_c37118.start_client(procs, procs["plant"], measurements, mode, 1)
         limit = 60.0 + duration_s * (1.0 if mode == "realtime" else 2.0)
         status = procs["plant"].wait_exit(limit)
         if status != 0:

@@ -27,6 +27,7 @@ setup(
             "replay = nni_msgs_adapter.recording.replay:main",
             "nni-replay = nni_msgs_adapter.recording.replay:main",
             "rerun_bridge = nni_msgs_adapter.viewing.rerun_bridge:main",
+            "c37118_client = nni_msgs_adapter.c37118.client_node:main",
         ],
     },
 )

@@ -48,5 +48,41 @@ def plant_values(n_stations: int, k: int, *, stat: int = 0) -> c37.Measurements:
         digital=(station % 2)[:, None])
 
 
+def data_frame(config: c37.Config, epoch_ns: int, k: int, *, stat=0) -> bytes:
+    """Data frame of sample k (stamped ``epoch_ns`` + k periods of 20 ms) of ``config``'s stream."""
+    return c37.DataFrameEncoder(config).encode(epoch_ns + k * 20_000_000,
+                                                plant_values(len(config.stations), k, stat=stat))
+
+
+def bad_input_stream(config: c37.Config, epoch_ns: int) -> bytes:
+    """Good data frames of ``config``'s stream (a two-station one) around every kind of bad input a PDC must
+    reject, one each: bad CRC, wrong sync, another IDCODE, a FRAMESIZE larger than the configuration's,
+    a truncated frame, one station's data flagged invalid, time going backwards, a duplicate stamp, a
+    command frame from the PMU. Samples 0, 2, 3, 6, 7 (one station) and 8 pass."""
+    def data(k: int, **options) -> bytes:
+        return data_frame(config, epoch_ns, k, **options)
+
+    damaged = bytearray(data(1))
+    damaged[40] ^= 0x10
+    other_stream = c37.Config(config.idcode + 1, config.stations, config.data_rate)
+    bigger = plant_config(len(config.stations) + 1, idcode=config.idcode)
+    bigger_frame = data_frame(bigger, epoch_ns, 4)
+    return b"".join([
+        data(0),
+        bytes(damaged),                                   # bad_crc
+        data(2),
+        b"\x55\x55",                                      # wrong sync: bad_sync
+        data(3),
+        data_frame(other_stream, epoch_ns, 0),            # wrong_idcode
+        bigger_frame,                                     # bad_framesize: larger than the config's frame
+        data(5)[:30], data(6),                            # truncated
+        data(7, stat=[0, c37.Stat(data_error=c37.DATA_TEST_MODE).word]),  # invalid_data, one station
+        data(5),                                          # time_backwards
+        data(7),                                          # duplicate
+        c37.encode_command(config.idcode, c37.Command.DATA_ON, epoch_ns),  # wrong_type: a command from the PMU
+        data(8),
+    ])
+
+
 def wrapped(angle_rad):
     return np.remainder(np.asarray(angle_rad) + np.pi, 2 * np.pi) - np.pi

@@ -12,7 +12,7 @@ MACHINE = {"cpu": "test CPU", "cores": 2, "kernel": "6.1", "python": "3.11", "pa
            "load_average_at_start": (0.2, 0.1, 0.1), "load_average_at_end": (0.5, 0.2, 0.1)}
 HEADINGS = ["## 1. Closed-loop latency", "### 1b. The controller's share", "## 2. Lockstep throughput",
             "## 3. Region-of-attraction sweep", "## 4. Network lockstep throughput", "## 5. Network realtime",
-            "## 6. Memory per controller"]
+            "## 6. Memory per controller", "## 8. Latency the C37.118 path adds to the loop"]
 
 
 def latency_row(rate_hz: float, p50_ratio: float, misses: int = 0) -> dict:
@@ -46,6 +46,13 @@ def realtime_result() -> dict:
             "rounds": 3, "kinds": kinds, "memory": memory}
 
 
+def c37118_loop_result(added_ms: float) -> dict:
+    ros = {"p50": 0.3, "p99": 0.8, "max": 1.5, "deadline_misses": 0, "measurements": 1500}
+    return {"rate_hz": 50.0, "duration_s": 30.0, "rounds": 3, "ros": ros,
+            "c37118": {**ros, "p50": 0.3 + added_ms, "deadline_misses": 1}, "added_p50_ms": added_ms,
+            "round_added_ms": [added_ms] * 3}
+
+
 def results(latency_ratio: float = 1.2, network_ratio: float = 1.8) -> dict:
     share_ms = {"p50": 0.4, "p99": 0.9, "max": 1.0, "mean": 0.45}
     return {
@@ -62,6 +69,7 @@ def results(latency_ratio: float = 1.2, network_ratio: float = 1.8) -> dict:
                              network_row("kundur_two_area", 4, "separate", 1.5),
                              network_row("ieee39", 10, "separate", network_ratio)],
         "network-realtime": realtime_result(),
+        "c37118-loop": c37118_loop_result(0.6),
     }
 
 
@@ -185,3 +193,11 @@ def test_the_profile_section_gives_each_part_its_share_and_its_time_per_loop_sam
     assert f"The plant's measurement publishes: {600 / SAMPLING_HZ * 1e6 / 100 / 10:.1f} us per message" in text
     assert "## 7. Where a network lockstep sample's time goes (issue 23)\n\n**Not completed**: py-spy failed" in page(
         {"network-profile": {"error": "py-spy failed"}})
+
+
+@pytest.mark.parametrize(("added_ms", "verdict"), [(0.6, "met."), (1.2, "**not met**.")])
+def test_the_c37118_path_is_judged_on_the_p50_it_adds_at_50_per_s(added_ms, verdict):
+    text = page({"c37118-loop": c37118_loop_result(added_ms)})
+    rounds = ", ".join([f"{added_ms:.2f}"] * 3)
+    assert f"Added p50: **{added_ms:.3f} ms** ({rounds}) <= 1 ms: {verdict}" in text
+    assert f"| C37.118 (`c37118/pmu`) | {0.3 + added_ms:.3f} / 0.800 / 1.50 | 1 | 1500 |" in text

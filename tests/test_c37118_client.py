@@ -12,19 +12,17 @@ import time
 
 import pytest
 
-from c37118_cases import EPOCH_NS, plant_config, plant_values
+from c37118_cases import EPOCH_NS, bad_input_stream, data_frame, plant_config, plant_values
 from nni_msgs_adapter.c37118 import frames as c37
 from nni_msgs_adapter.c37118.client import PdcClient, PdcSession
 from nni_msgs_adapter.c37118.server import PmuServer
 
 CONFIG = plant_config(2)
-ENCODER = c37.DataFrameEncoder(CONFIG)
 CFG2 = c37.encode_config(CONFIG, c37.FrameType.CFG2, EPOCH_NS)
 
 
-def data(k: int, *, stat=0, config=CONFIG) -> bytes:
-    encoder = ENCODER if config is CONFIG else c37.DataFrameEncoder(config)
-    return encoder.encode(EPOCH_NS + k * 20_000_000, plant_values(len(config.stations), k, stat=stat))
+def data(k: int, *, stat=0) -> bytes:
+    return data_frame(CONFIG, EPOCH_NS, k, stat=stat)
 
 
 def commands(replies) -> list[int]:
@@ -54,28 +52,7 @@ def test_the_session_asks_for_cfg2_then_data_and_gives_samples_stamped_from_soc_
 
 def test_every_bad_input_is_rejected_and_counted():
     session = configured()
-    damaged = bytearray(data(1))
-    damaged[40] ^= 0x10
-    other_stream = c37.Config(8, CONFIG.stations, 50)
-    bigger = plant_config(3)
-    bigger_frame = bytearray(data(4, config=bigger))
-    bigger_frame[4:6] = (7).to_bytes(2, "big")
-    bigger_frame[-2:] = c37.crc_ccitt(bytes(bigger_frame[:-2])).to_bytes(2, "big")
-    stream = b"".join([
-        data(0),
-        bytes(damaged),                                   # bad_crc
-        data(2),
-        b"\x55\x55",                                      # wrong sync: bad_sync
-        data(3),
-        c37.DataFrameEncoder(other_stream).encode(EPOCH_NS, plant_values(2, 0)),  # wrong_idcode
-        bytes(bigger_frame),                              # bad_framesize: larger than the config's frame
-        data(5)[:30], data(6),                            # truncated
-        data(7, stat=[0, c37.Stat(data_error=c37.DATA_TEST_MODE).word]),  # invalid_data, one station
-        data(5),                                          # time_backwards
-        data(7),                                          # duplicate
-        c37.encode_command(7, c37.Command.DATA_ON, EPOCH_NS),  # wrong_type: a command from the PMU
-        data(8),
-    ])
+    stream = bad_input_stream(CONFIG, EPOCH_NS)
     samples, replies = session.feed(stream)
     assert [s.instant_ns for s in samples[::2]] == [EPOCH_NS + k * 20_000_000 for k in (0, 2, 3, 6, 7, 8)]
     assert len(samples) == 11 and replies == []

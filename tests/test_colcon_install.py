@@ -178,7 +178,7 @@ def test_launch_file_matches_the_installed_nodes(workspace):
                for call in ast.walk(tree) if isinstance(call, ast.Call) and getattr(call.func, "id", "") == "Node"]
     assert {(n["package"], n["executable"]) for n in started} == {
         ("nni_plant_sim", "plant_node"), ("nni_battery_controller", "controller_node"),
-        ("nni_msgs_adapter", "mcap_logger")}
+        ("nni_msgs_adapter", "mcap_logger"), ("nni_msgs_adapter", "c37118_client")}
     for node in started:
         assert os.access(resolve_executable(env, node["package"], node["executable"]), os.X_OK)
     handlers = [call for call in ast.walk(tree) if isinstance(call, ast.Call)

@@ -176,6 +176,16 @@ def test_demo_waits_for_the_bridge_before_the_plant_starts():
     assert plant_parameters(args, with_bridge=False)["wait_for_subscribers"] == 2
 
 
+def test_through_c37118_the_plant_waits_for_the_logger_on_pmu_and_for_the_client_on_its_stream():
+    """The controller reads c37118/pmu: the plant's pmu has the logger (and a bridge); the client turns data on."""
+    args = parse_arguments(build_parser(), ["--measurements", "c37118"])
+    plant = plant_parameters(args, with_bridge=False)
+    assert plant["wait_for_subscribers"] == 1 and plant_parameters(args, with_bridge=True)["wait_for_subscribers"] == 2
+    assert plant["pmu_port"] == 0 and plant["pmu_host"] == "127.0.0.1" and plant["pmu_wait_for_pdcs"] == 1
+    assert controller_parameters(args, 0.3)["measurement_topic"] == "c37118/pmu"
+    assert recording_name(0.3, plant) == "paper_b0.3.mcap", "the stream is the run's set-up, not its case"
+
+
 def test_rerun_serve_prints_a_localhost_url_and_binds_to_localhost(tmp_path):
     domain = fresh_domain_id()
     demo = subprocess.Popen([str(DEMO), "--b", "0.3", "--duration", "1", "--rerun", "serve", "--out", str(tmp_path),
@@ -292,7 +302,8 @@ def test_run_metadata_holds_every_node_parameter():
     args = parse_arguments(build_parser(), ["--b", "0.3"])
     plant = plant_parameters(args, with_bridge=False)
     meta = run_metadata(args, plant, controller_parameters(args, 0.3))
-    assert set(meta) == {"scenario", "plant", "controller", "mode", "rate_hz", "software_version"}
+    assert set(meta) == {"scenario", "plant", "controller", "mode", "rate_hz", "measurements", "software_version"}
+    assert meta["measurements"] == "ros"
     assert meta["scenario"] == {"name": "initial_angle", "delta0_rad": 0.2, "speed0_rad_s": 0.0}
     assert meta["plant"]["mode"] == "lockstep" and meta["plant"]["p_mech_pu"] == 0.8
     assert meta["controller"]["battery_limit_pu"] == 0.3 and meta["controller"]["gain_l"] == 1.1

@@ -412,6 +412,24 @@ def test_the_launch_file_creates_one_controller_per_generator_of_the_case(networ
         assert set(node["parameters"]) <= declared, (node["executable"], set(node["parameters"]) - declared)
 
 
+def test_the_launch_file_feeds_the_controllers_through_c37118_on_request(network_launch):
+    nodes = network_launch.network_nodes({"case": "kundur_two_area", "measurements": "c37118", "pmu_port": "4800"})
+    kinds = [(n["package"], n["executable"]) for n in nodes]
+    assert kinds == [("nni_msgs_adapter", "mcap_logger"), *[("nni_battery_controller", "controller_node")] * 4,
+                     ("nni_msgs_adapter", "c37118_client"), ("nni_plant_sim", "network_plant_node")]
+    assert all(n["parameters"]["measurement_topic"] == "c37118/pmu" for n in nodes[1:5])
+    client, plant = nodes[5]["parameters"], nodes[-1]["parameters"]
+    assert client["pmu_port"] == plant["pmu_port"] == 4800 and client["mode"] == plant["mode"] == "lockstep"
+    assert client["namespaces"] == ["/gen1", "/gen2", "/gen3", "/gen4"] and client["wait_for_subscribers"] == 2
+    assert plant["wait_for_subscribers"] == 1 and plant["pmu_wait_for_pdcs"] == 1, "the logger on pmu, the client"
+    assert all(node["env"] == {"NNI_DDS_PARTICIPANTS": "7"} for node in nodes), "logger, plant, client, 4"
+    for node in nodes:
+        module = importlib.import_module(console_script_module(node["executable"]))
+        assert set(node["parameters"]) <= {spec.name for spec in module.parameters()}
+    with pytest.raises(ValueError, match="measurements must be one of ros, c37118, got 'udp'"):
+        network_launch.network_nodes({"measurements": "udp"})
+
+
 #: Each network scenario as launch arguments and as the nni-demo --case options that say the same.
 LAUNCH_SCENARIOS = [
     ({"fault_bus": "8", "fault_x": "0.01", "clearing_time": "0.15", "trip_line": "7 8"},

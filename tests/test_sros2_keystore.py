@@ -26,7 +26,7 @@ import pytest
 from rosproc import fresh_domain_id, ros_env
 
 SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "sros2_keystore"
-NODES = ("plant", "controller", "mcap_logger", "rerun_bridge")
+NODES = ("plant", "controller", "mcap_logger", "rerun_bridge", "c37118_client")
 ENCLAVE_FILES = {"key.pem", "cert.pem", "identity_ca.cert.pem", "permissions_ca.cert.pem", "governance.p7s",
                  "permissions.p7s", "permissions.xml"}
 DOMAIN = 42
@@ -129,13 +129,16 @@ def test_only_the_controller_commands_the_battery_and_only_the_plant_publishes_m
     publishers = {
         "battery/command": {"/nni/controller"}, "controller/state": {"/nni/controller"},
         "pmu": {"/nni/plant"}, "plant/state": {"/nni/plant"}, "plant/invariant_set": {"/nni/plant"},
-        "diagnostics": {"/nni/plant", "/nni/controller"},
+        "diagnostics": {"/nni/plant", "/nni/controller", "/nni/c37118_client"},
+        # The plant's rt/*/pmu matches it too (DDS Security's fnmatch lets * cross a /): the plant is trusted.
+        "c37118/pmu": {"/nni/c37118_client", "/nni/plant"},
     }
     for topic, expected in publishers.items():
         assert allowed(table, "publish", f"rt{namespace}/{topic}") == expected, topic
     assert allowed(table, "publish", "rt/clock") == {"/nni/plant"}
     subscribers = {"battery/command": {"/nni/plant", "/nni/mcap_logger"},
                    "pmu": {"/nni/controller", "/nni/mcap_logger"},
+                   "c37118/pmu": {"/nni/controller", "/nni/mcap_logger"},
                    "plant/state": {"/nni/mcap_logger", "/nni/rerun_bridge"}}
     for topic, expected in subscribers.items():
         assert allowed(table, "subscribe", f"rt{namespace}/{topic}") == expected, topic

@@ -11,7 +11,10 @@ are read from the same files) and then the arguments. The model arguments
 (``p_mech_pu``, ``p_max_pu``, ``inertia_h_s``, ``f0_hz``) go to the plant and
 to the controller's model of it, ``pmu_rate_hz`` to the plant and as
 ``sample_rate_hz`` to the controller. All topics are relative, so the namespace
-argument puts one generator's loop under /<namespace>. With ``duration_s > 0``
+argument puts one generator's loop under /<namespace>. ``measurements:=c37118``
+feeds the controller through the plant's IEEE C37.118.2 stream on loopback
+``pmu_port`` and a ``c37118_client`` node (as ``nni-demo --measurements
+c37118``; the rate must be one C37.118 allows). With ``duration_s > 0``
 the launch shuts down when the plant exits: the controller and the logger get
 SIGINT, and the logger finishes the recording.
 """
@@ -24,9 +27,10 @@ from launch.actions import DeclareLaunchArgument, EmitEvent, RegisterEventHandle
 from launch.conditions import IfCondition
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
-from launch.substitutions import EnvironmentVariable, LaunchConfiguration
+from launch.substitutions import EnvironmentVariable, LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
 
+from nni_battery_controller.demo_c37118 import STREAM_TOPIC, client_parameters, plant_parameters as stream_parameters
 from nni_msgs_adapter.ros.processes import parameter_text
 from nni_msgs_adapter.ros.defaults import load_defaults
 
@@ -68,16 +72,32 @@ def generate_launch_description():
               for name in (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS, *CONTROLLER_ARGUMENTS, *LOGGER_ARGUMENTS)}
     namespace = LaunchConfiguration("namespace")
     secure = IfCondition(LaunchConfiguration("use_security"))
+    through_stream = ["'", LaunchConfiguration("measurements"), "' == 'c37118'"]
+
+    def chosen(stream, ros):
+        """``stream`` with measurements:=c37118, else ``ros`` (Python literals, or substitutions)."""
+        return PythonExpression([*stream, " if ", *through_stream, " else ", *ros])
+
+    # The stream's parameters, its port and its wait for the client only with measurements:=c37118.
+    stream = {**stream_parameters("c37118"), "pmu_port": chosen([LaunchConfiguration("pmu_port")], ["-1"]),
+              "pmu_wait_for_pdcs": chosen(["1"], ["0"])}
     plant = Node(package="nni_plant_sim", executable="plant_node", name="plant", namespace=namespace,
                  ros_arguments=["--enclave", "/nni/plant"],
                  parameters=[config_file("plant"),
                              {**{name: config[name] for name in (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS)},
-                              "wait_for_subscribers": 2}])  # the controller and the logger
+                              # the controller and the logger on pmu; through the stream the logger, and the client
+                              "wait_for_subscribers": chosen(["1"], ["2"]), **stream}])
     controller = Node(package="nni_battery_controller", executable="controller_node", name="controller",
                       namespace=namespace, ros_arguments=["--enclave", "/nni/controller"],
                       parameters=[config_file("controller"),
                                   {**{name: config[name] for name in (*CONTROLLER_ARGUMENTS, *MODEL_ARGUMENTS)},
-                                   "sample_rate_hz": config["pmu_rate_hz"]}])
+                                   "sample_rate_hz": config["pmu_rate_hz"],
+                                   "measurement_topic": chosen([repr(STREAM_TOPIC)], ["'pmu'"])}])
+    # It connects once the controller and the logger read its c37118/pmu.
+    client = Node(package="nni_msgs_adapter", executable="c37118_client", name="c37118_client", namespace=namespace,
+                  condition=IfCondition(PythonExpression(through_stream)),
+                  ros_arguments=["--enclave", "/nni/c37118_client"],
+                  parameters=[client_parameters(LaunchConfiguration("pmu_port"), config["mode"], 2)])
     logger = Node(package="nni_msgs_adapter", executable="mcap_logger", name="mcap_logger", namespace=namespace,
                   ros_arguments=["--enclave", "/nni/mcap_logger"],
                   parameters=[config_file("mcap_logger"), {name: config[name] for name in LOGGER_ARGUMENTS}])
@@ -86,6 +106,10 @@ def generate_launch_description():
         *arguments("plant", (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS)),
         *arguments("controller", CONTROLLER_ARGUMENTS),
         *arguments("mcap_logger", LOGGER_ARGUMENTS),
+        DeclareLaunchArgument("measurements", default_value="ros",
+                              description="ros: the controller reads the plant's pmu; c37118: the plant's C37.118.2 "
+                                          "stream on loopback pmu_port, through the c37118_client node"),
+        DeclareLaunchArgument("pmu_port", default_value="4712", description="measurements c37118: the stream's port"),
         DeclareLaunchArgument("use_security", default_value="false",
                               description="true: SROS2 (Enforce), each node in its enclave /nni/<node> of the "
                                           "keystore made by scripts/sros2_keystore; ROS 2 Jazzy installs only"),
@@ -96,6 +120,7 @@ def generate_launch_description():
         SetEnvironmentVariable("ROS_SECURITY_KEYSTORE", LaunchConfiguration("keystore"), condition=secure),
         logger,
         controller,
+        client,
         plant,
         # The run is over when the plant exits (duration_s > 0): stop the others, finish the recording.
         RegisterEventHandler(OnProcessExit(target_action=plant, on_exit=[

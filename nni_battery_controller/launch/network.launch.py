@@ -22,7 +22,10 @@ scenario is refused, not ignored; ``fault_bus`` empty: the case's default bus,
 package's config YAML; the launch passes only what it sets. Every process is
 told how many the launch starts (``NNI_DDS_PARTICIPANTS``), so that the 54 of
 ``kundur_ring_52`` discover each other. The launch shuts down when the plant exits: the controllers and the
-logger get SIGINT, and the logger finishes the recording.
+logger get SIGINT, and the logger finishes the recording. With
+``measurements:=c37118`` the controllers read ``c37118/pmu``, fed from the
+plant's C37.118.2 stream on loopback ``pmu_port`` by a ``c37118_client`` node
+(as ``nni-demo --measurements c37118``).
 
 ``launch`` is imported inside :func:`generate_launch_description` only, so
 that :func:`network_nodes` (the nodes a launch would create, as plain dicts)
@@ -33,6 +36,9 @@ import math
 
 import yaml
 
+from nni_battery_controller.demo_c37118 import MEASUREMENTS, client_parameters, plant_readers
+from nni_battery_controller.demo_c37118 import controller_parameters as measurement_topic
+from nni_battery_controller.demo_c37118 import plant_parameters as stream_parameters
 from nni_battery_controller.network_deployment import (
     battery_limits,
     controller_parameters,
@@ -63,6 +69,9 @@ RUN_ARGUMENTS = {
     "gain_l": (None, "L, pu/rad, at every generator (K < L)"),
     "alpha": (None, "alpha at every generator"),
     "output_path": ("network.mcap", "the MCAP recording of every namespace"),
+    "measurements": ("ros", "how the controllers get the measurements: ros (the plant's pmu topics) or c37118 (the "
+                     "plant's IEEE C37.118.2 stream on loopback pmu_port, read by the c37118_client node)"),
+    "pmu_port": ("4712", "measurements c37118: the stream's loopback TCP port"),
 }
 #: The network plant node's disturbance parameters, the launch arguments of the same names.
 SCENARIO_ARGUMENTS = ("scenario", *SCENARIO_PARAMETERS)
@@ -70,6 +79,7 @@ SCENARIO_ARGUMENTS = ("scenario", *SCENARIO_PARAMETERS)
 PLANT = ("nni_plant_sim", "network_plant_node")
 CONTROLLER = ("nni_battery_controller", "controller_node")
 LOGGER = ("nni_msgs_adapter", "mcap_logger")
+CLIENT = ("nni_msgs_adapter", "c37118_client")
 
 
 def _text(value) -> str:
@@ -161,15 +171,23 @@ def network_nodes(given: dict) -> list[dict]:
     law = NetworkLaw.uniform(net, *(float(_value(values[name])) for name in ("tau_s", "gain_k", "gain_l", "alpha")))
     limits = battery_limits(net.size, float(_value(values["battery_limit_pu"])),
                             generator_limits(values["gen_b"].split(), net.size, "gen_b"))
-    plant = plant_parameters(case, scenario, values["mode"], rate, float(_value(values["duration_s"])))
+    measurements, port = values["measurements"], int(_value(values["pmu_port"]))
+    if measurements not in MEASUREMENTS:
+        raise ValueError(f"measurements must be one of {', '.join(MEASUREMENTS)}, got {measurements!r}")
+    plant = {**plant_parameters(case, scenario, values["mode"], rate, float(_value(values["duration_s"])),
+                                plant_readers(measurements, 2)), **stream_parameters(measurements, port)}
     nodes = [{"package": LOGGER[0], "executable": LOGGER[1], "name": "mcap_logger", "namespace": "",
               "parameters": {"output_path": values["output_path"]}}]
     nodes += [{"package": CONTROLLER[0], "executable": CONTROLLER[1], "name": "controller", "namespace": ns,
-               "parameters": controller_parameters(net, i, limits[i], rate, law)} for i, ns in enumerate(namespaces(net))]
+               "parameters": {**controller_parameters(net, i, limits[i], rate, law), **measurement_topic(measurements)}}
+              for i, ns in enumerate(namespaces(net))]
+    if measurements == "c37118":  # it connects once the controllers and the logger read each c37118/pmu
+        nodes.append({"package": CLIENT[0], "executable": CLIENT[1], "name": "c37118_client", "namespace": "",
+                      "parameters": client_parameters(port, values["mode"], 2, [f"/{ns}" for ns in namespaces(net)])})
     nodes.append({"package": PLANT[0], "executable": PLANT[1], "name": "network_plant", "namespace": "",
                   "parameters": plant})
     # Every process learns how many there are: beyond 32 (the ring's 54) their discovery is widened to cover them.
-    env = {PARTICIPANTS_ENV: str(participants(net, "separate", 2))}
+    env = {PARTICIPANTS_ENV: str(participants(net, "separate", 2 + (measurements == "c37118")))}
     return [{**node, "env": env} for node in nodes]
 
 

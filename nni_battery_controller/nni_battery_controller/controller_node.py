@@ -2,6 +2,8 @@
 
 Only translates between ROS and :class:`~nni_battery_controller.controller_core.ControllerCore`
 (the input gate, the centre of inertia for reference coi, the law the offline sampled simulation runs).
+Its measurements come from ``pmu`` or, with ``measurement_topic c37118/pmu``, from the plant's C37.118
+stream through the PDC client node.
 """
 
 from __future__ import annotations
@@ -25,8 +27,8 @@ class ControllerNode(LoopNode):
         self._commands, self._states = (StampedPublisher(self, topic) for topic in (
             contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE))
         ControllerCore.warm_up(config)
-        self._pmu_subs = [contract.subscribe(self, contract.TOPIC_PMU, lambda data, i=i: self._on_pmu(i, data), ns,
-                                             raw=True) for i, ns in enumerate(config.pmu_namespaces)]
+        self._pmu_subs = [contract.subscribe(self, config.measurement_topic, lambda data, i=i: self._on_pmu(i, data),
+                                             ns, raw=True) for i, ns in enumerate(config.pmu_namespaces)]
         self._clock_sub = contract.subscribe(self, contract.TOPIC_CLOCK, self._on_clock, raw=True)
         contract.subscribe(self, contract.TOPIC_DIAGNOSTICS, self._on_diagnostics, raw=True)
         # Restarted by each measurement: it fires only on silence (profiled: one at the sample rate doubled wake-ups).

@@ -11,8 +11,10 @@ back. Each run is judged with the offline network study's assessment
 ``nni-simulate --case`` prints it, with each generator's loop latency and
 trust counters; ``OUT/summary.json`` holds it all per generator. A run in which
 any generator's battery was commanded by anyone but its controller, or applied
-more than its b, is reported as compromised (exit status 3). Killed, it takes
-its processes with it.
+more than its b, is reported as compromised (exit status 3). With
+``--measurements c37118`` the controllers are fed through the plant's
+C37.118.2 stream and the client node (:mod:`nni_battery_controller.demo_c37118`).
+Killed, it takes its processes with it.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import textwrap
 import time
 from pathlib import Path
 
+from nni_battery_controller import demo_c37118
 from nni_battery_controller.controller_config import parameters as controller_node_parameters
 from nni_battery_controller.demo_common import (
     COMPROMISED_PREFIX,
@@ -130,6 +133,7 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
     add_rerun_option(parser)
+    demo_c37118.add_measurements_option(parser)
     parser.add_argument("--deployment", choices=DEPLOYMENTS, default="separate",
                         help="separate: one controller process per generator (default); composed: all the case's "
                              "controllers as nodes of one composed_controllers process, on one executor")
@@ -165,15 +169,28 @@ def parse_arguments(argv=None):
     args.law = NetworkLaw.uniform(net, *(getattr(defaults, name) if getattr(args, dest) is None else getattr(args, dest)
                                          for dest, name in GAINS), reference=args.reference)
     args.gen_limits = generator_limits(args.gen_b, net.size)
-    check_ranges("network plant", plant_node_parameters(),
-                 plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration,
-                                    pmu_readers(args.net, args.reference) + (args.rerun is not None)))
+    demo_c37118.check_stream(args, float(net.f0_hz))
+    check_ranges("network plant", plant_node_parameters(), network_plant_parameters(args))
     for b in args.b:
         limits = battery_limits(net.size, b, args.gen_limits)
         for i in range(net.size):
             check_ranges("controller", controller_node_parameters(),
                          controller_parameters(net, i, limits[i], args.rate, args.law))
     return args
+
+
+def network_plant_parameters(args) -> dict:
+    """The network plant's parameters of a run: it waits for each pmu's readers (a Rerun bridge among them)."""
+    readers = demo_c37118.plant_readers(args.measurements, pmu_readers(args.net, args.reference),
+                                        args.rerun is not None)
+    return {**plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration, readers),
+            **demo_c37118.plant_parameters(args.measurements)}
+
+
+def controllers_parameters(args, limits) -> dict:
+    """``{absolute namespace: controller parameters}`` of a run whose battery limits are ``limits``."""
+    return {f"/{ns}": {**controller_parameters(args.net, i, limits[i], args.rate, args.law),
+                       **demo_c37118.controller_parameters(args.measurements)} for i, ns in enumerate(namespaces(args.net))}
 
 
 def check_ranges(node: str, specs, values: dict) -> None:
@@ -207,7 +224,7 @@ def run_metadata(args, plant: dict, controllers: dict) -> dict:
     values = {key: value for key, value in args.scenario_values.items() if key != "scenario"}
     return {"case": args.case, "scenario": {"name": args.scenario, **values}, "network_plant": plant,
             "controllers": controllers, "deployment": args.deployment, "mode": args.mode, "rate_hz": args.rate,
-            "software_version": software_version()}
+            "measurements": args.measurements, "software_version": software_version()}
 
 
 def generator_result(outcome_json: dict, loop: dict, counts: dict, namespace: str) -> dict:
@@ -274,9 +291,8 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
     only when the bridge has logged every generator's recorded samples."""
     net, spaces = args.net, namespaces(args.net)
     limits = battery_limits(net.size, b, args.gen_limits)
-    plant_params = plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration,
-                                    pmu_readers(args.net, args.reference) + (args.rerun is not None))
-    controllers = {f"/{ns}": controller_parameters(net, i, limits[i], args.rate, args.law) for i, ns in enumerate(spaces)}
+    plant_params = network_plant_parameters(args)
+    controllers = controllers_parameters(args, limits)
     recording = args.out / recording_name(args, b)
     logs = args.out / "logs" / recording.stem
     started = time.monotonic()
@@ -287,6 +303,9 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
         started_controllers = start_controllers(procs, controllers, args.deployment)
         wait_for_recorder(logger, spaces, logs)
         plant = procs.start_node("network_plant", PLANT, plant_params)
+        client = demo_c37118.start_client(procs, plant, args.measurements, args.mode,
+                                          pmu_readers(net, args.reference), [f"/{ns}" for ns in spaces])
+        demo_c37118.wait_connected(client, run_label(args, b))
         finish_plant(procs, plant, args, run_label(args, b), SUMMARY_PREFIX)
         for controller in started_controllers:
             controller.stop()
@@ -309,7 +328,8 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
     outcome_json = outcome.to_json()
     result = {"b": json_b(b), "gen_b": {f"gen{i + 1}": json_b(v) for i, v in sorted(args.gen_limits.items())},
               "reference": args.reference, **{k: v for k, v in outcome_json.items() if k != "generators"},
-              "deployment": args.deployment, "mode": args.mode, "rate_hz": args.rate, "recording": str(recording),
+              "deployment": args.deployment, "mode": args.mode, "rate_hz": args.rate,
+              "measurements": args.measurements, "recording": str(recording),
               "wall_time_s": round(wall_s, 3),
               "generators": {ns: generator_result(g, loops[ns], counts, ns)
                              for ns, g in zip(spaces, outcome_json["generators"])}}
@@ -373,11 +393,13 @@ def main(argv=None) -> int:
         env, domain = run_environment(args)
         net, spaces = args.net, namespaces(args.net)
         # The logger and the plant, a Rerun bridge, the controllers: beyond 32, discovery is widened to cover them.
-        env = with_participants(env, participants(net, args.deployment, 2 + (args.rerun is not None)))
+        env = with_participants(env, participants(net, args.deployment, 2 + (args.rerun is not None)
+                                                  + (args.measurements == "c37118")))
         deployment = ("a controller process each" if args.deployment == "separate"
                       else "their controllers composed in one process")
         print(f"{PROG}: {args.case}, {net.size} generators ({deployment}, /{spaces[0]} .. /{spaces[-1]}), {args.mode},"
-              f" {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}")
+              f" {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}"
+              + (", measurements through C37.118" if args.measurements == "c37118" else ""))
         law = args.law
         gains = ", ".join(f"{name} {'/'.join(f'{v:g}' for v in sorted(set(values.tolist())))}"
                           for name, values in (("tau", law.tau_s), ("K", law.gain_k), ("L", law.gain_l),
@@ -395,7 +417,8 @@ def main(argv=None) -> int:
         summary = write_summary(args.out, {
             "case": args.case, "generators": list(net.names), "namespaces": list(spaces),
             "mbase_mva": net.mbase_mva.tolist(), "scenario": args.scenario_values, "description": args.description,
-            "deployment": args.deployment, "mode": args.mode, "rate_hz": args.rate, "runs": results})
+            "deployment": args.deployment, "mode": args.mode, "rate_hz": args.rate, "measurements": args.measurements,
+            "runs": results})
         figure = args.out / "figures.png"
         plot_network(plotted, f"{args.case}: {args.description}; controllers {args.rate:g} Hz over ROS 2", figure)
         written = [str(summary), str(figure)] + ([sink["path"]] if sink and sink["sink"] == "save" else [])

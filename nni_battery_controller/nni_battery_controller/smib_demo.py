@@ -11,7 +11,9 @@ from the plant's final diagnostics. A run in which the battery was commanded by
 anyone but its controller, or applied more than b, is reported as compromised
 (exit status 3). With ``--rerun`` a Rerun bridge is part of every run: the
 plant starts only once the bridge hears it, and a run ends only when the
-bridge has logged every sample the recording holds. The orchestrator creates
+bridge has logged every sample the recording holds. With ``--measurements
+c37118`` the controller is fed through the plant's C37.118.2 stream and the
+client node (:mod:`nni_battery_controller.demo_c37118`). The orchestrator creates
 no ROS node of its own; killed (SIGINT, SIGTERM, SIGKILL), it takes its
 processes with it.
 """
@@ -26,6 +28,7 @@ import sys
 import time
 from pathlib import Path
 
+from nni_battery_controller import demo_c37118
 from nni_battery_controller.demo_common import (
     check_complete,
     compromised_reasons,
@@ -66,7 +69,8 @@ from nni_plant_sim.cases import CASES
 from nni_plant_sim.scenarios import SCENARIO_FIELDS
 
 #: Plant parameters that set up a run without changing its case (the recording name ignores them).
-RUN_CONTROL = frozenset({"mode", "duration_s", "pmu_rate_hz", "wait_for_subscribers"})
+RUN_CONTROL = frozenset({"mode", "duration_s", "pmu_rate_hz", "wait_for_subscribers", "pmu_port", "pmu_host",
+                         "pmu_freq_format", "pmu_wait_for_pdcs"})
 
 
 def build_parser() -> OneLineParser:
@@ -82,6 +86,7 @@ def build_parser() -> OneLineParser:
                         help=f"PMU reporting rate, frames/s (default: {rate:g})")
     parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder, created (default: out/demo)")
     add_rerun_option(parser)
+    demo_c37118.add_measurements_option(parser)
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
     parser.add_argument("--case", metavar="CASE",
@@ -100,7 +105,7 @@ def recording_name(b: float, plant: dict | None = None) -> str:
 
     ``plant`` holds the plant parameters the demo sets (None: the paper's case);
     the paper's case is the package defaults for everything but the run's set-up
-    (mode, duration, rate, subscribers to wait for).
+    (mode, duration, rate, subscribers to wait for, the C37.118 stream).
     """
     defaults = plant_defaults()
     case = {key: value for key, value in (plant or {}).items() if key not in RUN_CONTROL}
@@ -113,12 +118,15 @@ def plant_parameters(args, with_bridge: bool) -> dict:
     """The plant parameters of one run that differ from the package defaults (or set up the run)."""
     # It waits for the controller and the logger, and for the Rerun bridge when there is one.
     return {**args.model.plant_node_parameters(), "mode": args.mode, "duration_s": args.duration,
-            "pmu_rate_hz": args.rate, "wait_for_subscribers": 3 if with_bridge else 2}
+            "pmu_rate_hz": args.rate,
+            "wait_for_subscribers": demo_c37118.plant_readers(args.measurements, 2, with_bridge),
+            **demo_c37118.plant_parameters(args.measurements)}
 
 
 def controller_parameters(args, b: float) -> dict:
     """The controller parameters of one run that differ from the package defaults."""
-    return {**args.model.controller_node_parameters(), "battery_limit_pu": b, "sample_rate_hz": args.rate}
+    return {**args.model.controller_node_parameters(), "battery_limit_pu": b, "sample_rate_hz": args.rate,
+            **demo_c37118.controller_parameters(args.measurements)}
 
 
 def run_metadata(args, plant: dict, controller: dict) -> dict:
@@ -128,7 +136,7 @@ def run_metadata(args, plant: dict, controller: dict) -> dict:
     options = {key: value for key, value in plant_values.items() if key in SCENARIO_FIELDS.get(scenario, ())}
     return {"scenario": {"name": scenario, **options}, "plant": plant_values,
             "controller": {**controller_defaults(), **controller}, "mode": args.mode, "rate_hz": args.rate,
-            "software_version": software_version()}
+            "measurements": args.measurements, "software_version": software_version()}
 
 
 def wait_for_bridge(bridge, index: int, run: GeneratorRun, logs: Path) -> None:
@@ -172,6 +180,8 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
             "run_metadata": json.dumps(run_metadata(args, plant_params, controller_params))})
         controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params)
         plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params)
+        client = demo_c37118.start_client(procs, plant, args.measurements, args.mode, 2)
+        demo_c37118.wait_connected(client, f"b = {b:<5g}")
         finish_plant(procs, plant, args, f"b = {b:<5g}")
         controller.stop()
         if logger.stop() != 0:
@@ -179,8 +189,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
     wall_s = time.monotonic() - started
     counts = logger_counts(logger.output())
     summary = plant_summary(plant.output())
-    check_complete(recording, sum(n for topic, n in counts.items() if topic.endswith("/pmu")),
-                   int(summary["measurements"]), logs)
+    check_complete(recording, counts.get("/pmu", 0), int(summary["measurements"]), logs)
     run = read_generator_run(recording)
     if bridge is not None:
         wait_for_bridge(bridge, index, run, logs)
@@ -189,7 +198,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
     outcome = assess(traj, scenario=args.model.scenario()).to_json()
     diag = run.diagnostics
     outcome.update({
-        "mode": args.mode, "rate_hz": args.rate, "recording": str(recording),
+        "mode": args.mode, "rate_hz": args.rate, "measurements": args.measurements, "recording": str(recording),
         "wall_time_s": round(wall_s, 3),
         "samples": int(diag.get("samples", 0)),
         # The plant measures latency to the nanosecond: more digits are float noise (0.33549999999999996).
@@ -229,6 +238,7 @@ def parse_arguments(parser: OneLineParser, argv=None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     args.model = resolve_model(args, parser.prog)
     args.model.validate()
+    demo_c37118.check_stream(args, args.model.plant["f0_hz"])
     return args
 
 
@@ -246,7 +256,8 @@ def main(argv=None) -> int:
         args = parse_arguments(parser, argv)
         sink = rerun_sink(args.rerun) if args.rerun else None
         env, domain = run_environment(args)
-        print(f"nni-demo: {args.mode}, {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}")
+        print(f"nni-demo: {args.mode}, {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}"
+              + (", measurements through C37.118" if args.measurements == "c37118" else ""))
         print(f"  {args.model.header()}")
         with Supervisor(env, args.out) as viewer:
             bridge = start_viewer(viewer, sink, args.model.plant["f0_hz"]) if sink else None

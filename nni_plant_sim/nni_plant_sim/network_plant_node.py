@@ -16,7 +16,9 @@ flow). Scenarios ``bus_fault``, ``line_trip``, ``mechanical_step`` and
 ``angle_displacement`` with the offline ``nni-simulate --case`` option names as
 parameters, from the pre-fault equilibrium at t = 0 (``fault_at_start``) or at
 the ``plant/start_fault`` service call. PMU noise per generator (its own seed);
-P_E is that of the true state.
+P_E is that of the true state. Its C37.118 stream has a station per generator
+(``gen<i> G<i> bus <bus>``) with the EMF at the measured angle and the terminal
+voltage and current of the true state (:func:`.phasors.terminal_phasors`).
 """
 
 from __future__ import annotations
@@ -31,7 +33,9 @@ from nni_plant_sim.integrators import advance
 from nni_plant_sim.network import electrical_power
 from nni_plant_sim.network_plant_config import parameters, scenario_from
 from nni_plant_sim.network_scenarios import AngleDisplacement
+from nni_plant_sim.phasors import frequency_hz, rocof_hz_per_s, terminal_phasors
 from nni_plant_sim.plant_node_base import PlantNodeBase
+from nni_plant_sim.pmu_stream import station_values
 
 #: Prefix of the JSON line with every generator's final diagnostics values, printed at exit.
 SUMMARY_PREFIX = "network_plant_node summary: "
@@ -75,6 +79,27 @@ class NetworkPlantNode(PlantNodeBase):
         power = electrical_power(x[0], self._scenario.network(sample.t_s, self._plant)[1])[:, 0] / self._scale
         return [(*sensor.read(delta, speed), p) for sensor, delta, speed, p
                 in zip(self._sensors, *x.reshape(2, -1).tolist(), power.tolist())]
+
+    def _stream_description(self) -> tuple:
+        """A station per generator, named by its namespace, machine and bus; EMF, terminal voltage and current."""
+        net = self._plant
+        names = [f"{ns} {name.replace('@', ' bus ')}" for ns, name in zip(self.namespaces, net.names)]
+        return names, net.f0_hz, True, f"nni_plant_sim network_plant_node: {self._values['case']}, {net.size} generators"
+
+    def _synchrophasors(self, sample, frames, stat):
+        """Per generator: the EMF at the measured angle, V_t and I_t (pu of the machine's rating) of the true
+        state, FREQ from the measured speed, ROCOF of the true state, P_E and P_ST (pu of the machine's rating)."""
+        net = self._plant
+        delta, speed = sample.state.reshape(2, -1)
+        p_mech, coupling = self._scenario.network(sample.t_s, net)
+        emf, current, voltage = terminal_phasors(net, coupling, delta)
+        measured, battery = np.array(frames), np.array(sample.powers)
+        phasors = np.column_stack((emf, voltage, current / self._scale))
+        angle = np.angle(phasors)
+        angle[:, 0] = measured[:, 0]
+        rocof = rocof_hz_per_s(net, (p_mech, coupling), delta, speed, battery * self._scale)
+        return station_values(stat, np.abs(phasors), angle, frequency_hz(measured[:, 1], net.f0_hz), rocof,
+                              np.column_stack((measured[:, 2], battery)))
 
 
 def main(args=None) -> int:

@@ -1,7 +1,7 @@
 """The plant nodes' parameters: declared once with unit and range, and what they build.
 
 :func:`run_parameters` are those of every plant node (time mode, start, the
-batteries' rating, the PMU, the timeouts; :mod:`nni_plant_sim.plant_node_base`
+batteries' rating, the PMU and its C37.118 stream, the timeouts; :mod:`nni_plant_sim.plant_node_base`
 reads them); :func:`parameters` is the SMIB plant node's table, whose defaults
 live in ``config/plant.yaml``, read on the first call (not at import). The
 network plant's table is :mod:`nni_plant_sim.network_plant_config`.
@@ -16,6 +16,7 @@ from nni_msgs_adapter.ros.defaults import plant_defaults
 from nni_msgs_adapter.ros.ros_params import Spec
 from nni_plant_sim.link import Link
 from nni_plant_sim.model import SmibParams
+from nni_plant_sim.pmu_stream import stream_parameters
 from nni_plant_sim.scenarios import SCENARIOS
 
 
@@ -48,6 +49,7 @@ def run_parameters(defaults: dict) -> tuple[Spec, ...]:
         Spec("lockstep_timeout_s", defaults["lockstep_timeout_s"], "lockstep: wall time to wait for a command before applying zero, s.",
              1e-3, 100.0),
         *link_parameters(defaults),
+        *stream_parameters(defaults),
     )
 
 

@@ -16,8 +16,10 @@ from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.node_main import run_node
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.model import electrical_power, invariant_set_boundary
+from nni_plant_sim.phasors import frequency_hz, rocof_hz_per_s
 from nni_plant_sim.plant_config import parameters, plant_from
 from nni_plant_sim.plant_node_base import PlantNodeBase
+from nni_plant_sim.pmu_stream import station_values
 from nni_plant_sim.scenarios import InitialAngle, from_values
 
 #: Prefix of the JSON line with the final diagnostics values printed at exit.
@@ -56,6 +58,19 @@ class PlantNode(PlantNodeBase):
         delta, speed = self._sensors[0].read(*sample.state.tolist())
         _, p_max = self._scenario.network(sample.t_s, self._plant)
         return ((delta, speed, float(electrical_power(delta, p_max))),)
+
+    def _stream_description(self) -> tuple:
+        """One station, the generator (no buses: its infinite bus is the reference); EMF only."""
+        return ("SMIB generator",), self._values["f0_hz"], False, "nni_plant_sim plant_node: the SMIB generator"
+
+    def _synchrophasors(self, sample, frames, stat):
+        """The EMF (1 pu) at the measured angle, FREQ from the measured speed, ROCOF of the true state, P_E, P_ST."""
+        (delta, speed, p_elec), = frames
+        true_delta, true_speed = sample.state.tolist()
+        rocof = rocof_hz_per_s(self._plant, self._scenario.network(sample.t_s, self._plant), true_delta, true_speed,
+                               sample.powers[0])
+        return station_values(stat, 1.0, delta, frequency_hz(speed, self._plant.f0_hz), rocof,
+                              (p_elec, sample.powers[0]))
 
 
 def main(args=None) -> int:

@@ -15,13 +15,18 @@ on each command topic to the generator's :class:`.reporting.CommandChannel`,
 serves ``plant/start_fault`` (the fault starts then; ``fault_at_start``: at
 t = 0) and publishes one status per generator on ``/diagnostics`` (``run_ended`` in
 the callback of the run's last sample; at exit also printed as one JSON line).
+With ``pmu_port`` it also serves every sample as IEEE C37.118.2
+(:mod:`.pmu_stream`: listening from the node's start, each PDC's connection
+and departure logged, the stream's counters as status ``c37118_server`` on
+``/diagnostics``; the run waits for ``pmu_wait_for_pdcs`` PDCs with data on).
 
 A plant node sets, in :meth:`_configure_plant`: ``namespaces`` (``("",)``:
 the node's own), ``_plant`` (what :func:`.integrators.advance` integrates),
 ``_fault`` and ``_before`` (the scenario and the pre-fault one, see
 :class:`.scenarios.StartingAt`) and ``_labels`` (extra status values per
-generator); and it gives :meth:`_integrate`, :meth:`_state_of` and
-:meth:`_frames`.
+generator); and it gives :meth:`_integrate`, :meth:`_state_of`,
+:meth:`_frames`, and for the C37.118 stream :meth:`_stream_description` and
+:meth:`_synchrophasors`.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.loop_node import LoopNode, StampedPublisher
 from nni_msgs_adapter.ros.ros_params import locked_changes
 from nni_plant_sim.plant_config import link_from
+from nni_plant_sim.pmu_stream import STREAM_PARAMETERS, PlantStream
 from nni_plant_sim.reporting import CommandChannel, LockstepStepper, PmuSensor, RealtimeReporter, SubscriberWait
 from nni_plant_sim.scenarios import StartingAt
 
@@ -50,6 +56,7 @@ class PlantNodeBase(LoopNode):
         self._specs, values = specs, self.initial_values
         self._loop = None  # the reporting core, from the start of the run
         self._configure(values)
+        self._stream, self._pdc_wait = self._open_stream(values)
         self._lockstep, self.done = values["mode"] == "lockstep", Future()
         self._scenario = StartingAt(self._fault, math.inf, self._before)  # pre-fault until the fault starts
         self._wait = SubscriberWait(values["wait_for_subscribers"], values["discovery_settle_s"],
@@ -83,6 +90,8 @@ class PlantNodeBase(LoopNode):
         if self._loop is not None:
             locked_changes(self._values, values, [spec.name for spec in self._specs])
         locked_changes(self._values, values, *self._locked_at_start())
+        locked_changes(self._values, values, (*STREAM_PARAMETERS, *(("pmu_rate_hz", "f0_hz") if self._stream else ())),
+                       "once the node is up (its C37.118 stream is configured)")
         self._check(values)
         link_from(values)
         return values
@@ -90,6 +99,20 @@ class PlantNodeBase(LoopNode):
     def _install(self, values: dict) -> None:
         if values != self._values:  # a change before the run (during it every parameter is locked)
             self._configure(values)
+
+    def _open_stream(self, values: dict):
+        """The C37.118 stream ``pmu_port`` asks for, listening, and its wait for PDCs; (None, None) without."""
+        stream = PlantStream.from_values(values, *self._stream_description())
+        if stream is None:
+            return None, None
+        self.get_logger().info(stream.start())
+        self.create_timer(0.2, self._log_stream_events)
+        return stream, SubscriberWait(values["pmu_wait_for_pdcs"], 0.0, values["wait_timeout_s"], self.now_ns())
+
+    def _log_stream_events(self) -> None:
+        """A PDC connected, went away, turned data on or off: one line each."""
+        for line in self._stream.events():
+            self.get_logger().info(line)
 
     # --- start ---------------------------------------------------------------------------
 
@@ -100,6 +123,9 @@ class PlantNodeBase(LoopNode):
         fewest, silent = readers.index(min(readers)), writers.index(min(writers))
         state, level, text = self._wait.poll(self.now_ns(), readers[fewest], writers[silent],
                                              pmu_pubs[fewest].topic_name, self._command_subs[silent].topic_name)
+        if state == "start" and self._pdc_wait is not None:
+            state, level, text = self._pdc_wait.poll(self.now_ns(), self._stream.streaming, 1,
+                                                     f"the C37.118 stream at {self._stream.where} with data on", "")
         if text is not None:
             contract.log_at(self.get_logger(), level, text)
         self._gave_up = state == "give_up"
@@ -129,6 +155,8 @@ class PlantNodeBase(LoopNode):
 
     def _start_fault_now(self) -> None:
         self._scenario = StartingAt(self._fault, self._loop.t_s, self._before)
+        if self._stream is not None:
+            self._stream.disturbed()
         self._loop.replace_state(self._state_of(self._fault))
 
     def _on_start_fault(self, request, response):
@@ -149,8 +177,12 @@ class PlantNodeBase(LoopNode):
             return
         sample = output.measurement
         if sample is not None:
-            for pub, frame in zip(self._pmu_pubs, self._frames(sample)):
+            frames = self._frames(sample)
+            for pub, frame in zip(self._pmu_pubs, frames):
                 pub.publish(sample.stamp_ns, *frame)
+            if self._stream is not None:
+                self._stream.offer(sample.stamp_ns, sample.t_s, self._scenario.breakpoints(),
+                                   lambda stat: self._synchrophasors(sample, frames, stat))
             if self._lockstep:  # /clock after the measurement: the controller answers before it reads the clock
                 self._loop.sent(self.now_ns())
                 self._clock_pub.publish(sample.stamp_ns)
@@ -206,6 +238,8 @@ class PlantNodeBase(LoopNode):
             stamp_ns, power = contract.command_from_bytes(data)
         except contract.ContractError:
             stamp_ns, power = 0, math.nan  # malformed: invalid, as a non-finite power is
+        if self._stream is not None:
+            stamp_ns = self._stream.plant_stamp(stamp_ns)  # an answer to the stream's stamp, to the microsecond
         self._publish(self._loop.command(index, stamp_ns, power, arrival_ns)[1])
         self._report_events(index)
 
@@ -228,6 +262,8 @@ class PlantNodeBase(LoopNode):
         for ns, channel, values in zip(self.namespaces, self._channels, generators):
             self.publish_status("plant", *channel.health(self._loop is not None, self._wait.text), values,
                                 f"/{ns}/plant" if ns else "")
+        if self._stream is not None:
+            self.publish_status("c37118_server", *self._stream.status())
         return generators
 
     def close(self) -> None:
@@ -240,5 +276,7 @@ class PlantNodeBase(LoopNode):
         generators = self.publish_diagnostics()
         print(self.summary_prefix + json.dumps(generators[0] if self.namespaces == ("",) else
                                                dict(zip(self.namespaces, generators))), flush=True)
+        if self._stream is not None:
+            self._stream.stop()
         if self._gave_up:
             raise SystemExit(1)  # nobody to run with (node_main returns 0 after a node's normal end)

@@ -205,6 +205,11 @@ class PmuServer:
 
     # --- what the node reads ----------------------------------------------------------------------
 
+    @property
+    def streaming(self) -> int:
+        """PDCs with data on now."""
+        return self._streaming
+
     def events(self) -> list[str]:
         """The lines to log since the last call (oldest first; at most the last 256)."""
         return drain(self._events)

@@ -10,6 +10,11 @@ Mapping (see README, "Topics"):
 * ``pmu`` sensor_msgs/JointState, joint "rotor": position = rotor angle delta
   (rad, against the infinite bus), velocity = speed deviation omega - omega0
   (rad/s), effort = electrical power P_E (pu). Stamp = measurement instant.
+* ``c37118/pmu``: the same measurement as read from an IEEE C37.118.2 stream by
+  the PDC client node (:mod:`nni_msgs_adapter.c37118.client_node`): position =
+  the EMF phasor's angle unwrapped, velocity = 2 pi (FREQ - FNOM), effort = the
+  P_E analog; stamp = the frame's SOC/FRACSEC (lockstep: the epoch taken off).
+  A controller reads it instead of ``pmu`` with ``measurement_topic``.
 * ``battery/command`` sensor_msgs/JointState, joint "battery": effort = battery
   power change P_ST (pu). Stamp = stamp of the measurement it answers.
 * ``plant/state`` sensor_msgs/JointState, joint "rotor": true delta, speed
@@ -49,6 +54,7 @@ from sensor_msgs.msg import JointState
 from nni_msgs_adapter.ros import cdr
 
 TOPIC_PMU = "pmu"
+TOPIC_C37118_PMU = "c37118/pmu"
 TOPIC_BATTERY_COMMAND = "battery/command"
 TOPIC_PLANT_STATE = "plant/state"
 TOPIC_CONTROLLER_STATE = "controller/state"
@@ -107,6 +113,7 @@ CLOCK_QOS = QoSProfile(
 #: topic -> (message type name, message class, QoS), everything the logger records.
 TOPICS = {
     TOPIC_PMU: ("sensor_msgs/msg/JointState", JointState, SAMPLE_QOS),
+    TOPIC_C37118_PMU: ("sensor_msgs/msg/JointState", JointState, SAMPLE_QOS),
     TOPIC_BATTERY_COMMAND: ("sensor_msgs/msg/JointState", JointState, SAMPLE_QOS),
     TOPIC_PLANT_STATE: ("sensor_msgs/msg/JointState", JointState, SAMPLE_QOS),
     TOPIC_CONTROLLER_STATE: ("sensor_msgs/msg/JointState", JointState, SAMPLE_QOS),
@@ -335,8 +342,8 @@ def controller_state_bytes() -> cdr.StampedBytes:
 
 
 #: The per-sample topics' layouts (:func:`layout`).
-_LAYOUTS = {TOPIC_PMU: rotor_bytes, TOPIC_PLANT_STATE: rotor_bytes, TOPIC_BATTERY_COMMAND: command_bytes,
-            TOPIC_CONTROLLER_STATE: controller_state_bytes, TOPIC_CLOCK: cdr.clock}
+_LAYOUTS = {TOPIC_PMU: rotor_bytes, TOPIC_C37118_PMU: rotor_bytes, TOPIC_PLANT_STATE: rotor_bytes,
+            TOPIC_BATTERY_COMMAND: command_bytes, TOPIC_CONTROLLER_STATE: controller_state_bytes, TOPIC_CLOCK: cdr.clock}
 
 
 def layout(topic: str) -> cdr.StampedBytes:

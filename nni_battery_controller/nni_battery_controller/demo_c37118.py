@@ -1,0 +1,99 @@
+"""``nni-demo --measurements c37118``: the demos' controllers fed through the plant's IEEE C37.118.2 stream.
+
+The plant serves its stream on a free loopback port (``pmu_port`` 0; the port
+read back from its "listening on" line), FREQ/DFREQ as floats, and starts
+its run only once one PDC has turned data on. The ``c37118_client`` node
+(:mod:`nni_msgs_adapter.c37118.client_node`, station k in the k-th
+generator's namespace) connects once every station's ``c37118/pmu`` has its
+readers (the controllers and the logger) and publishes each station there;
+the controllers read ``c37118/pmu`` instead of ``pmu``
+(``measurement_topic``). The plant's own ``pmu`` is still published and
+recorded: the recording holds both. Both demos (SMIB and ``--case``) use
+these helpers alike.
+"""
+
+from __future__ import annotations
+
+from nni_msgs_adapter.c37118 import profile
+from nni_msgs_adapter.ros.cli_support import CliError
+from nni_msgs_adapter.ros.defaults import controller_defaults
+from nni_msgs_adapter.ros.processes import ChildError
+
+#: ``--measurements``: the plant's ROS topic, or its C37.118 stream through the client node.
+MEASUREMENTS = ("ros", "c37118")
+CLIENT_MODULE = "nni_msgs_adapter.c37118.client_node"
+#: The controllers' measurement topic (``measurement_topic``) fed through the stream.
+STREAM_TOPIC = "c37118/pmu"
+#: Seconds the plant gets to say where it listens, and the client to connect once started.
+LISTEN_WAIT_S = 30.0
+CONNECT_WAIT_S = 60.0
+_LISTENING = "listening on "
+_CONNECTED = "connected to PMU"
+
+
+def add_measurements_option(parser) -> None:
+    parser.add_argument("--measurements", choices=MEASUREMENTS, default="ros",
+                        help="how the controllers get the measurements: ros, the plant's pmu topic (default), or "
+                             "c37118, the plant's IEEE C37.118.2 stream on a loopback port read by the c37118_client "
+                             "node (rates 10, 25, 50, 100 frames/s at 50 Hz; 10 ... 120 at 60 Hz)")
+
+
+def check_stream(args, nominal_hz: float) -> None:
+    """CliError (one line) when ``--measurements c37118`` asks for a stream C37.118 cannot carry."""
+    if args.measurements != "c37118":
+        return
+    try:
+        profile.stream_config(1, ("check",), args.rate, nominal_hz, False, "float")
+    except ValueError as error:
+        raise CliError(f"--measurements c37118: {error}") from None
+
+
+def plant_parameters(measurements: str, port: int = 0) -> dict:
+    """The plant's stream parameters, on loopback ``port`` (0: a free one); none for measurements ``ros``."""
+    if measurements != "c37118":
+        return {}
+    return {"pmu_port": port, "pmu_host": "127.0.0.1", "pmu_freq_format": "float", "pmu_wait_for_pdcs": 1}
+
+
+def controller_parameters(measurements: str) -> dict:
+    """The controllers' measurement topic (the default, ``pmu``, for measurements ``ros``)."""
+    return {"measurement_topic": STREAM_TOPIC} if measurements == "c37118" else {}
+
+
+def plant_readers(measurements: str, readers: int, bridge: bool = False) -> int:
+    """The readers the plant waits for on each ``pmu``: ``readers`` (the logger and the controllers) and a Rerun
+    bridge; through the stream the controllers read ``c37118/pmu`` instead, and the client waits for them there."""
+    return (1 if measurements == "c37118" else readers) + bridge
+
+
+def client_parameters(port: int, mode: str, readers: int, namespaces=()) -> dict:
+    """The client node's parameters: the stream on loopback ``port``, the plant's ``mode`` (a launch passes its
+    substitutions), station k in the k-th of ``namespaces`` (none: one station, the node's own namespace),
+    connecting once each has ``readers``."""
+    params = {"pmu_host": "127.0.0.1", "pmu_port": port, "mode": mode, "wait_for_subscribers": readers,
+              "max_age_s": controller_defaults()["stamp_tolerance_s"]}
+    return {**params, "namespaces": list(namespaces)} if namespaces else params
+
+
+def start_client(procs, plant, measurements: str, mode: str, readers: int, namespaces=()):
+    """The client node, on the stream ``plant`` (in ``mode``) says it listens on; it connects once each station's
+    topic has ``readers`` subscribers. None for measurements ``ros``."""
+    if measurements != "c37118":
+        return None
+    try:
+        line = plant.wait_for_line("C37.118 PMU stream", LISTEN_WAIT_S, lambda text: _LISTENING in text)
+    except ChildError as error:
+        raise CliError(f"the plant's C37.118 stream did not start: {error}") from None
+    _, port = profile.parse_server_address(line.split(_LISTENING, 1)[1].split()[0])
+    return procs.start_node("c37118_client", CLIENT_MODULE, client_parameters(port, mode, readers, namespaces))
+
+
+def wait_connected(client, label: str) -> None:
+    """Wait for the client's connection to the stream and say so (one progress line)."""
+    if client is None:
+        return
+    try:
+        line = client.wait_for_line(_CONNECTED, CONNECT_WAIT_S)
+    except ChildError as error:
+        raise CliError(f"the C37.118 client did not connect: {error}") from None
+    print(f"  {label} C37.118: {line}, the controllers read {STREAM_TOPIC}")

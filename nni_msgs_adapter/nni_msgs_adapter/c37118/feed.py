@@ -1,0 +1,133 @@
+"""From a C37.118 stream's station samples to the controllers' measurements: the PDC client node's core.
+
+:class:`StationFeeds` takes what :class:`~.client.PdcClient` hands over (each
+frame's :class:`~.client.StationSample` list) and gives, per station mapped
+to a generator's namespace, the measurement the contract's ``pmu`` layout
+carries (:data:`nni_msgs_adapter.ros.contract.TOPIC_C37118_PMU`):
+
+* the stamp: the frame's SOC/FRACSEC (ns since 1970), lockstep with the
+  profile's epoch taken off (:func:`.profile.stamp_from_instant`): the
+  plant's simulated ns, to the microsecond;
+* the angle: the named phasor's (default the plants' EMF, whose angle is the
+  rotor angle), unwrapped from sample to sample (C37.118 sends float angles
+  wrapped into [-pi, pi); a rotor that slips poles turns on), starting afresh
+  on each new connection at the value on the wire;
+* the speed deviation 2 pi (FREQ - FNOM), rad/s;
+* the effort: the named analog (default the plants' P_E), NaN when the
+  stream has none (a controller with g measured then refuses the sample).
+
+The stream's rejections are the client core's (:class:`~.client.PdcSession`:
+``bad_crc``, ``bad_sync``, ``wrong_idcode``, ``bad_framesize``, ``oversized``,
+``truncated``, ``invalid_data``, ``time_backwards``, ``duplicate``, ``stale``,
+...); the feeds add two of their own: ``missing_channel`` (a station without
+the named phasor or analog) and ``unmapped_station`` (a station beyond the
+namespaces given). :meth:`StationFeeds.status` raises WARN on /diagnostics
+while any grows, ERROR while not connected.
+
+Pure python: no ROS import.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+from . import profile
+from .counting import add
+from .frames import Config
+
+#: The feeds' own rejection reasons, beside the client core's.
+FEED_REJECTIONS = ("missing_channel", "unmapped_station")
+#: The power channel of a feed told to read none: its effort is NaN.
+_NO_ANALOG = -1
+
+
+class Measurement(NamedTuple):
+    """One station's sample for generator ``index`` (of the feeds' namespaces), in the ``pmu`` layout's units."""
+
+    index: int
+    stamp_ns: int
+    angle_rad: float
+    speed_rad_s: float
+    power_pu: float
+
+
+def unwrapped(previous_rad: float | None, wire_rad: float) -> float:
+    """``wire_rad`` (within [-pi, pi]) moved by whole turns to lie within pi of ``previous_rad`` (None: as it is)."""
+    if previous_rad is None:
+        return wire_rad
+    return previous_rad + math.remainder(wire_rad - previous_rad, 2.0 * math.pi)
+
+
+def _index(names: list[str], name: str) -> int | None:
+    return names.index(name) if name in names else None
+
+
+class StationFeeds:
+    """The stations of one stream, station k feeding generator k of ``count`` namespaces (data frame order)."""
+
+    def __init__(self, count: int, lockstep: bool, angle_phasor: str = profile.EMF_PHASOR,
+                 power_analog: str = profile.POWER_ANALOG):
+        self.count, self.lockstep = count, lockstep
+        self.angle_phasor, self.power_analog = angle_phasor, power_analog
+        self.rejected: dict[str, int] = {}
+        self.published = 0
+        self._config: Config | None = None
+        self._channels: list[tuple[int, int | None] | None] = []
+        self._angles: list[float | None] = [None] * count
+        self._connection = None
+        self._reported: dict[str, int] = {}
+
+    def _configure(self, config: Config) -> None:
+        """Which phasor and analog of each station (None: a station without the named phasor or analog)."""
+        self._config, self._channels = config, []
+        for station in config.stations:
+            phasors = [p.name for p in station.phasors]
+            angle = _index(phasors, self.angle_phasor) if self.angle_phasor else (0 if phasors else None)
+            power = _index([a.name for a in station.analogs], self.power_analog) if self.power_analog else _NO_ANALOG
+            self._channels.append(None if angle is None or power is None else (angle, power))
+
+    def take(self, samples, config: Config, connection: int) -> list[Measurement]:
+        """The measurements of one frame's ``samples`` read with ``config`` on connection number ``connection``."""
+        if config is not self._config:
+            self._configure(config)
+        if connection != self._connection:
+            self._connection, self._angles = connection, [None] * self.count
+        taken = []
+        for sample in samples:
+            if sample.station >= self.count:
+                add(self.rejected, "unmapped_station")
+                continue
+            channels = self._channels[sample.station]
+            if channels is None:
+                add(self.rejected, "missing_channel")
+                continue
+            angle_index, power_index = channels
+            reading = sample.reading
+            angle = unwrapped(self._angles[sample.station], reading.angles_rad[angle_index])
+            self._angles[sample.station] = angle
+            nominal_hz = config.stations[sample.station].nominal_hz
+            taken.append(Measurement(sample.station, profile.stamp_from_instant(sample.instant_ns, self.lockstep),
+                                     angle, 2.0 * math.pi * (reading.frequency_hz - nominal_hz),
+                                     math.nan if power_index == _NO_ANALOG else reading.analogs[power_index]))
+        self.published += len(taken)
+        return taken
+
+    def status(self, client: dict) -> tuple[str, str, dict]:
+        """``(level, message, values)`` for /diagnostics from the client's counters (:meth:`.client.PdcClient.counters`):
+        ERROR while not connected, WARN while a rejection grew since the last status, else OK."""
+        rejected = dict(client["rejected"])
+        for reason, n in self.rejected.items():
+            add(rejected, reason, n)
+        values = {"connected": client["connected"], "connections": client["connections"],
+                  "connect_failures": client["connect_failures"], "samples": client["samples"],
+                  "published": self.published,
+                  **{f"frames_{kind}": n for kind, n in sorted(client["frames"].items())},
+                  **{f"rejected_{reason}": n for reason, n in sorted(rejected.items())}}
+        grew = sorted(reason for reason, n in rejected.items() if n > self._reported.get(reason, 0))
+        self._reported = rejected
+        if not client["connected"]:
+            return "ERROR", "not connected to the PMU", values
+        if grew:
+            return "WARN", f"rejected: {', '.join(grew)}", values
+        return "OK", "receiving", values
