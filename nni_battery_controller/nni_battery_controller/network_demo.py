@@ -11,8 +11,10 @@ back. Each run is judged with the offline network study's assessment
 ``nni-simulate --case`` prints it, with each generator's loop latency and
 trust counters; ``OUT/summary.json`` holds it all per generator. A run in which
 any generator's battery was commanded by anyone but its controller, or applied
-more than its b, is reported as compromised (exit status 3). Killed, it takes
-its processes with it.
+more than its b, is reported as compromised (exit status 3). With
+``--pmu-server`` the network plant also serves every generator's PMU as an
+IEEE C37.118.2 stream, a station each (:mod:`nni_battery_controller.demo_pmu`).
+Killed, it takes its processes with it.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from nni_battery_controller.demo_common import (
     software_version,
     write_summary,
 )
+from nni_battery_controller.demo_pmu import StreamWatch, add_pmu_options, stream_parameters, summary_line, wait_text
 from nni_battery_controller.demo_viewer import (
     BRIDGE_WAIT_S,
     add_rerun_option,
@@ -130,6 +133,7 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
     add_rerun_option(parser)
+    add_pmu_options(parser)
     parser.add_argument("--deployment", choices=DEPLOYMENTS, default="separate",
                         help="separate: one controller process per generator (default); composed: all the case's "
                              "controllers as nodes of one composed_controllers process, on one executor")
@@ -165,15 +169,20 @@ def parse_arguments(argv=None):
     args.law = NetworkLaw.uniform(net, *(getattr(defaults, name) if getattr(args, dest) is None else getattr(args, dest)
                                          for dest, name in GAINS), reference=args.reference)
     args.gen_limits = generator_limits(args.gen_b, net.size)
-    check_ranges("network plant", plant_node_parameters(),
-                 plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration,
-                                    pmu_readers(args.net, args.reference) + (args.rerun is not None)))
+    args.stream = stream_parameters(args, given_options(argv), float(net.f0_hz))
+    check_ranges("network plant", plant_node_parameters(), run_plant_parameters(args))
     for b in args.b:
         limits = battery_limits(net.size, b, args.gen_limits)
         for i in range(net.size):
             check_ranges("controller", controller_node_parameters(),
                          controller_parameters(net, i, limits[i], args.rate, args.law))
     return args
+
+
+def run_plant_parameters(args) -> dict:
+    """The network plant node's parameters of every run: the case, its disturbance, the run, its stream."""
+    return {**plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration,
+                               pmu_readers(args.net, args.reference) + (args.rerun is not None)), **args.stream}
 
 
 def check_ranges(node: str, specs, values: dict) -> None:
@@ -274,8 +283,7 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
     only when the bridge has logged every generator's recorded samples."""
     net, spaces = args.net, namespaces(args.net)
     limits = battery_limits(net.size, b, args.gen_limits)
-    plant_params = plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration,
-                                    pmu_readers(args.net, args.reference) + (args.rerun is not None))
+    plant_params = run_plant_parameters(args)
     controllers = {f"/{ns}": controller_parameters(net, i, limits[i], args.rate, args.law) for i, ns in enumerate(spaces)}
     recording = args.out / recording_name(args, b)
     logs = args.out / "logs" / recording.stem
@@ -287,7 +295,10 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
         started_controllers = start_controllers(procs, controllers, args.deployment)
         wait_for_recorder(logger, spaces, logs)
         plant = procs.start_node("network_plant", PLANT, plant_params)
-        finish_plant(procs, plant, args, run_label(args, b), SUMMARY_PREFIX)
+        watch = StreamWatch(plant) if args.stream else None
+        if watch is not None:
+            watch.listening()
+        finish_plant(procs, plant, args, run_label(args, b), SUMMARY_PREFIX, watch)
         for controller in started_controllers:
             controller.stop()
         if logger.stop() != 0:
@@ -313,6 +324,8 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
               "wall_time_s": round(wall_s, 3),
               "generators": {ns: generator_result(g, loops[ns], counts, ns)
                              for ns, g in zip(spaces, outcome_json["generators"])}}
+    if watch is not None:
+        result["c37118"] = watch.summary()
     compromised = {ns: reasons for i, ns in enumerate(spaces)
                    if (reasons := compromised_reasons(loops[ns], runs[f"/{ns}"], float(limits[i])))}
     if compromised:
@@ -361,6 +374,8 @@ def show_run(args, b: float, env: dict, bridge, index: int, plotted: list) -> di
         print(textwrap.indent(format_run(outcome, b, args.reference, net), "  "))
     print("\n".join(loop_table(result, net, limits) + clipped_lines(result)))
     print(f"  wall {result['wall_time_s']:.1f} s, recording {result['recording']}")
+    if "c37118" in result:
+        print(summary_line(result["c37118"]))
     return result
 
 
@@ -383,6 +398,8 @@ def main(argv=None) -> int:
                           for name, values in (("tau", law.tau_s), ("K", law.gain_k), ("L", law.gain_l),
                                                ("alpha", law.alpha)))
         print(f"  {args.description}; g measured, angle reference {args.reference}; {gains}")
+        if args.stream:
+            print(f"  {wait_text(args)}")
         results, plotted = [], []
         sink = rerun_sink(args.rerun) if args.rerun else None
         with Supervisor(env, args.out) as viewer:

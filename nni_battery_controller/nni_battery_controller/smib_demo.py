@@ -9,7 +9,10 @@ period), and reads the recording back to write ``OUT/summary.json``: the keys of
 measurement to command arrival at the plant) and dropped / late sample counts
 from the plant's final diagnostics. A run in which the battery was commanded by
 anyone but its controller, or applied more than b, is reported as compromised
-(exit status 3). With ``--rerun`` a Rerun bridge is part of every run: the
+(exit status 3). With ``--pmu-server`` each run's plant also serves its PMU
+as an IEEE C37.118.2 stream (:mod:`nni_battery_controller.demo_pmu`): where
+it listens, each PDC's arrival and departure, and its counters are printed,
+the counters also in the summary (``c37118``). With ``--rerun`` a Rerun bridge is part of every run: the
 plant starts only once the bridge hears it, and a run ends only when the
 bridge has logged every sample the recording holds. The orchestrator creates
 no ROS node of its own; killed (SIGINT, SIGTERM, SIGKILL), it takes its
@@ -38,6 +41,7 @@ from nni_battery_controller.demo_common import (
     software_version,
     write_summary,
 )
+from nni_battery_controller.demo_pmu import StreamWatch, add_pmu_options, stream_parameters, summary_line, wait_text
 from nni_battery_controller.demo_viewer import (
     BRIDGE_WAIT_S,
     add_rerun_option,
@@ -66,7 +70,8 @@ from nni_plant_sim.cases import CASES
 from nni_plant_sim.scenarios import SCENARIO_FIELDS
 
 #: Plant parameters that set up a run without changing its case (the recording name ignores them).
-RUN_CONTROL = frozenset({"mode", "duration_s", "pmu_rate_hz", "wait_for_subscribers"})
+RUN_CONTROL = frozenset({"mode", "duration_s", "pmu_rate_hz", "wait_for_subscribers", "pmu_host", "pmu_port",
+                         "pmu_idcode", "pmu_wait_for_pdcs"})
 
 
 def build_parser() -> OneLineParser:
@@ -82,6 +87,7 @@ def build_parser() -> OneLineParser:
                         help=f"PMU reporting rate, frames/s (default: {rate:g})")
     parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder, created (default: out/demo)")
     add_rerun_option(parser)
+    add_pmu_options(parser)
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
     parser.add_argument("--case", metavar="CASE",
@@ -113,7 +119,7 @@ def plant_parameters(args, with_bridge: bool) -> dict:
     """The plant parameters of one run that differ from the package defaults (or set up the run)."""
     # It waits for the controller and the logger, and for the Rerun bridge when there is one.
     return {**args.model.plant_node_parameters(), "mode": args.mode, "duration_s": args.duration,
-            "pmu_rate_hz": args.rate, "wait_for_subscribers": 3 if with_bridge else 2}
+            "pmu_rate_hz": args.rate, "wait_for_subscribers": 3 if with_bridge else 2, **args.stream}
 
 
 def controller_parameters(args, b: float) -> dict:
@@ -172,7 +178,10 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
             "run_metadata": json.dumps(run_metadata(args, plant_params, controller_params))})
         controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params)
         plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params)
-        finish_plant(procs, plant, args, f"b = {b:<5g}")
+        watch = StreamWatch(plant) if args.stream else None
+        if watch is not None:
+            watch.listening()
+        finish_plant(procs, plant, args, f"b = {b:<5g}", watch=watch)
         controller.stop()
         if logger.stop() != 0:
             raise CliError(f"the logger failed: {logger.tail()}")
@@ -199,6 +208,8 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
         "late_samples": int(diag.get("late", 0)),
         "logger_counts": counts,
     })
+    if watch is not None:
+        outcome["c37118"] = watch.summary()
     reasons = compromised_reasons(summary, run, b)
     if reasons:
         outcome["compromised"] = reasons
@@ -214,13 +225,15 @@ def run_all(args, env: dict, bridge=None) -> tuple[list[dict], list[Trajectory]]
         trajectories.append(traj)
         if "compromised" in run:
             print(f"  b = {b:<5g} {compromised_text(b, run['compromised'])}")
-            continue
-        lat = run["latency_ms"]
-        print(f"  b = {b:<5g} {verdict_text(run):<34} "
-              f"max|d| {run['max_abs_angle_dev_rad']:8.4f} rad  max|P_ST| {run['max_abs_battery_power_pu']:.4f} pu"
-              f"  latency p50/p99/max {lat.get('p50', math.nan):.2f}/{lat.get('p99', math.nan):.2f}/"
-              f"{lat.get('max', math.nan):.2f} ms  dropped {run['dropped_samples']}  late {run['late_samples']}"
-              f"  wall {run['wall_time_s']:.1f} s")
+        else:
+            lat = run["latency_ms"]
+            print(f"  b = {b:<5g} {verdict_text(run):<34} "
+                  f"max|d| {run['max_abs_angle_dev_rad']:8.4f} rad  max|P_ST| {run['max_abs_battery_power_pu']:.4f} pu"
+                  f"  latency p50/p99/max {lat.get('p50', math.nan):.2f}/{lat.get('p99', math.nan):.2f}/"
+                  f"{lat.get('max', math.nan):.2f} ms  dropped {run['dropped_samples']}  late {run['late_samples']}"
+                  f"  wall {run['wall_time_s']:.1f} s")
+        if "c37118" in run:
+            print(summary_line(run["c37118"]))
     return runs, trajectories
 
 
@@ -229,6 +242,8 @@ def parse_arguments(parser: OneLineParser, argv=None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     args.model = resolve_model(args, parser.prog)
     args.model.validate()
+    args.stream = stream_parameters(args, given_options(sys.argv[1:] if argv is None else argv),
+                                    args.model.plant["f0_hz"])
     return args
 
 
@@ -248,6 +263,8 @@ def main(argv=None) -> int:
         env, domain = run_environment(args)
         print(f"nni-demo: {args.mode}, {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}")
         print(f"  {args.model.header()}")
+        if args.stream:
+            print(f"  {wait_text(args)}")
         with Supervisor(env, args.out) as viewer:
             bridge = start_viewer(viewer, sink, args.model.plant["f0_hz"]) if sink else None
             runs, trajectories = run_all(args, env, bridge)
