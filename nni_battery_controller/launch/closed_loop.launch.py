@@ -10,7 +10,9 @@ package's ``config/*.yaml`` (where the defaults live; the arguments' defaults
 are read from the same files) and then the arguments. The model arguments
 (``p_mech_pu``, ``p_max_pu``, ``inertia_h_s``, ``f0_hz``) go to the plant and
 to the controller's model of it, ``pmu_rate_hz`` to the plant and as
-``sample_rate_hz`` to the controller. All topics are relative, so the namespace
+``sample_rate_hz`` to the controller. ``pmu_port`` (-1: none) serves the
+plant's PMU as an IEEE C37.118.2 stream on that TCP port of ``pmu_host``
+(loopback by default) with IDCODE ``pmu_idcode``. All topics are relative, so the namespace
 argument puts one generator's loop under /<namespace>. With ``duration_s > 0``
 the launch shuts down when the plant exits: the controller and the logger get
 SIGINT, and the logger finishes the recording.
@@ -34,6 +36,7 @@ from nni_msgs_adapter.ros.defaults import load_defaults
 PLANT_ARGUMENTS = (
     "mode", "pmu_rate_hz", "duration_s", "scenario", "delta0_rad", "speed0_rad_s", "step_p_mech_pu",
     "step_duration_s", "fault_p_max_pu", "clearing_time_s", "damping_pu", "battery_rating_pu",
+    "pmu_port", "pmu_host", "pmu_idcode",
 )
 #: Launch arguments that are controller parameters (package nni_battery_controller, config/controller.yaml).
 CONTROLLER_ARGUMENTS = ("tau_s", "gain_k", "gain_l", "alpha", "battery_limit_pu")

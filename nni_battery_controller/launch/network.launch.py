@@ -22,7 +22,10 @@ scenario is refused, not ignored; ``fault_bus`` empty: the case's default bus,
 package's config YAML; the launch passes only what it sets. Every process is
 told how many the launch starts (``NNI_DDS_PARTICIPANTS``), so that the 54 of
 ``kundur_ring_52`` discover each other. The launch shuts down when the plant exits: the controllers and the
-logger get SIGINT, and the logger finishes the recording.
+logger get SIGINT, and the logger finishes the recording. ``pmu_port`` (-1:
+none) serves every generator's PMU as an IEEE C37.118.2 stream, a station
+each, on that TCP port of ``pmu_host`` (loopback by default), IDCODE
+``pmu_idcode``.
 
 ``launch`` is imported inside :func:`generate_launch_description` only, so
 that :func:`network_nodes` (the nodes a launch would create, as plain dicts)
@@ -66,6 +69,8 @@ RUN_ARGUMENTS = {
 }
 #: The network plant node's disturbance parameters, the launch arguments of the same names.
 SCENARIO_ARGUMENTS = ("scenario", *SCENARIO_PARAMETERS)
+#: The network plant node's C37.118 stream parameters, the launch arguments of the same names.
+STREAM_ARGUMENTS = ("pmu_port", "pmu_host", "pmu_idcode")
 #: (package, executable) of each node.
 PLANT = ("nni_plant_sim", "network_plant_node")
 CONTROLLER = ("nni_battery_controller", "controller_node")
@@ -100,6 +105,8 @@ def arguments() -> dict:
         if spec.array_of is not None:
             text += "; space-separated"
         table[name] = (_text(spec.default), text)
+    for name in STREAM_ARGUMENTS:
+        table[name] = (_text(specs[name].default), specs[name].description.rstrip("."))
     bus = table["fault_bus"][1]
     table["fault_bus"] = ("", f"{bus} (empty: 7 Kundur and the ring, 16 IEEE 39)")
     return table
@@ -145,6 +152,16 @@ def scenario_values(net, case: str, values: dict) -> dict:
                                                 if merged["scenario"] in scenarios}}
 
 
+def stream_values(values: dict) -> dict:
+    """The network plant node's C37.118 stream parameters for these launch argument texts (port -1: none)."""
+    specs = {spec.name: spec for spec in plant_node_parameters()}
+    try:
+        return {name: type(specs[name].default)(values[name]) for name in STREAM_ARGUMENTS}
+    except ValueError:
+        raise ValueError(f"pmu_port and pmu_idcode take integers, got {values['pmu_port']!r} and "
+                         f"{values['pmu_idcode']!r}") from None
+
+
 def network_nodes(given: dict) -> list[dict]:
     """The nodes a launch with these argument texts creates: ``package``, ``executable``, ``name``,
     ``namespace``, ``parameters`` (one dict), ``env`` (what the process gets beside the launch's environment);
@@ -161,7 +178,8 @@ def network_nodes(given: dict) -> list[dict]:
     law = NetworkLaw.uniform(net, *(float(_value(values[name])) for name in ("tau_s", "gain_k", "gain_l", "alpha")))
     limits = battery_limits(net.size, float(_value(values["battery_limit_pu"])),
                             generator_limits(values["gen_b"].split(), net.size, "gen_b"))
-    plant = plant_parameters(case, scenario, values["mode"], rate, float(_value(values["duration_s"])))
+    plant = {**plant_parameters(case, scenario, values["mode"], rate, float(_value(values["duration_s"]))),
+             **stream_values(values)}
     nodes = [{"package": LOGGER[0], "executable": LOGGER[1], "name": "mcap_logger", "namespace": "",
               "parameters": {"output_path": values["output_path"]}}]
     nodes += [{"package": CONTROLLER[0], "executable": CONTROLLER[1], "name": "controller", "namespace": ns,
