@@ -129,6 +129,7 @@ def closed_loop(env: dict, log_dir: Path, mode: str, rate_hz: float, duration_s:
     after a short lockstep run (0.2 s) it sometimes had not (measured).
     """
     from nni_battery_controller import demo_c37118
+    from nni_battery_controller.demo_pmu import StreamWatch
     from nni_plant_sim.plant_node import SUMMARY_PREFIX
 
     with children(env, log_dir) as procs:
@@ -140,7 +141,9 @@ def closed_loop(env: dict, log_dir: Path, mode: str, rate_hz: float, duration_s:
                           # the controller on pmu; through the stream nobody reads pmu: the plant waits for the client
                           "wait_for_subscribers": 0 if measurements == "c37118" else 1,
                           **demo_c37118.plant_parameters(measurements)})
-        demo_c37118.start_client(procs, procs["plant"], measurements, mode, 1)
+        if measurements == "c37118":
+            demo_c37118.start_client(procs, StreamWatch(procs["plant"]).listening(announce=False), measurements,
+                                     mode, 1)
         limit = 60.0 + duration_s * (1.0 if mode == "realtime" else 2.0)
         status = procs["plant"].wait_exit(limit)
         if status != 0:

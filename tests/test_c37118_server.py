@@ -88,7 +88,10 @@ def test_pyc37s_pdc_gets_cfg2_and_header_turns_data_on_and_reads_the_frames(serv
     assert counters["frames_sent"] == 42 and counters["frames_dropped"] == 0 and counters["rejected"] == {}
     lines = server.events()
     assert lines[0].startswith("PDC 127.0.0.1:") and lines[0].endswith("connected")
-    assert "turned data on" in lines[1] and "went away (closed by the PDC)" in lines[-1]
+    assert "turned data on" in lines[1] and "went away (closed by the PDC): sent 42 frames, dropped 0" in lines[-1]
+    departed, = counters["departed"]  # what it was sent and lost, kept once it went away
+    assert (departed["frames_sent"], departed["frames_dropped"], departed["why"]) == (42, 0, "closed by the PDC")
+    assert departed["address"] == lines[0].split()[1] and counters["pdcs"] == []
 
 
 def test_our_client_core_gets_the_config_turns_data_on_and_reads_the_samples(server):

@@ -553,3 +553,11 @@ def test_a_second_writer_on_one_generators_battery_makes_the_run_compromised(tmp
     (run,) = json.loads((tmp_path / "summary.json").read_text())["runs"]
     assert list(run["compromised"]) == ["gen2"] and run["compromised"]["gen2"]["writer_alarms"] > 0
     assert run["generators"]["gen2"]["max_abs_applied_power_pu"] <= 0.1
+
+
+def test_the_launch_file_passes_the_c37118_stream_to_the_network_plant(network_launch):
+    plant = network_launch.network_nodes({"pmu_port": "4712", "pmu_idcode": "7"})[-1]["parameters"]
+    assert (plant["pmu_port"], plant["pmu_host"], plant["pmu_idcode"]) == (4712, "127.0.0.1", 7)
+    assert network_launch.network_nodes({})[-1]["parameters"]["pmu_port"] == -1, "no stream unless asked for"
+    with pytest.raises(ValueError, match="pmu_port and pmu_idcode take integers, got 'any'"):
+        network_launch.network_nodes({"pmu_port": "any"})

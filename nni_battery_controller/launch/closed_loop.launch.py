@@ -10,11 +10,13 @@ package's ``config/*.yaml`` (where the defaults live; the arguments' defaults
 are read from the same files) and then the arguments. The model arguments
 (``p_mech_pu``, ``p_max_pu``, ``inertia_h_s``, ``f0_hz``) go to the plant and
 to the controller's model of it, ``pmu_rate_hz`` to the plant and as
-``sample_rate_hz`` to the controller. All topics are relative, so the namespace
+``sample_rate_hz`` to the controller. ``pmu_port`` (-1: none) serves the
+plant's PMU as an IEEE C37.118.2 stream on that TCP port of ``pmu_host``
+(loopback by default) with IDCODE ``pmu_idcode``. All topics are relative, so the namespace
 argument puts one generator's loop under /<namespace>. ``measurements:=c37118``
-feeds the controller through the plant's IEEE C37.118.2 stream on loopback
-``pmu_port`` and a ``c37118_client`` node (as ``nni-demo --measurements
-c37118``; the rate must be one C37.118 allows). With ``duration_s > 0``
+feeds the controller through that stream (on port 4712 when ``pmu_port`` gives
+none) and a ``c37118_client`` node (as ``nni-demo --measurements c37118``;
+the rate must be one C37.118 allows). With ``duration_s > 0``
 the launch shuts down when the plant exits: the controller and the logger get
 SIGINT, and the logger finishes the recording.
 """
@@ -30,7 +32,7 @@ from launch.events import Shutdown
 from launch.substitutions import EnvironmentVariable, LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
 
-from nni_battery_controller.demo_c37118 import STREAM_TOPIC, client_parameters, plant_parameters as stream_parameters
+from nni_battery_controller.demo_c37118 import LAUNCH_PORT, STREAM_TOPIC, client_parameters
 from nni_msgs_adapter.ros.processes import parameter_text
 from nni_msgs_adapter.ros.defaults import load_defaults
 
@@ -38,6 +40,7 @@ from nni_msgs_adapter.ros.defaults import load_defaults
 PLANT_ARGUMENTS = (
     "mode", "pmu_rate_hz", "duration_s", "scenario", "delta0_rad", "speed0_rad_s", "step_p_mech_pu",
     "step_duration_s", "fault_p_max_pu", "clearing_time_s", "damping_pu", "battery_rating_pu",
+    "pmu_port", "pmu_host", "pmu_idcode",
 )
 #: Launch arguments that are controller parameters (package nni_battery_controller, config/controller.yaml).
 CONTROLLER_ARGUMENTS = ("tau_s", "gain_k", "gain_l", "alpha", "battery_limit_pu")
@@ -78,9 +81,10 @@ def generate_launch_description():
         """``stream`` with measurements:=c37118, else ``ros`` (Python literals, or substitutions)."""
         return PythonExpression([*stream, " if ", *through_stream, " else ", *ros])
 
-    # The stream's parameters, its port and its wait for the client only with measurements:=c37118.
-    stream = {**stream_parameters("c37118"), "pmu_port": chosen([LaunchConfiguration("pmu_port")], ["-1"]),
-              "pmu_wait_for_pdcs": chosen(["1"], ["0"])}
+    # Through the stream: served (on LAUNCH_PORT when pmu_port gives none), FREQ as floats, waiting for the client.
+    port = config["pmu_port"]
+    stream = {"pmu_port": chosen([f"({LAUNCH_PORT} if int('", port, "') < 0 else int('", port, "'))"], [port]),
+              "pmu_freq_format": chosen(["'float'"], ["'integer'"]), "pmu_wait_for_pdcs": chosen(["1"], ["0"])}
     plant = Node(package="nni_plant_sim", executable="plant_node", name="plant", namespace=namespace,
                  ros_arguments=["--enclave", "/nni/plant"],
                  parameters=[config_file("plant"),
@@ -97,7 +101,8 @@ def generate_launch_description():
     client = Node(package="nni_msgs_adapter", executable="c37118_client", name="c37118_client", namespace=namespace,
                   condition=IfCondition(PythonExpression(through_stream)),
                   ros_arguments=["--enclave", "/nni/c37118_client"],
-                  parameters=[client_parameters(LaunchConfiguration("pmu_port"), config["mode"], 2)])
+                  parameters=[client_parameters(stream["pmu_port"], config["mode"], 2, host=config["pmu_host"],
+                                                idcode=config["pmu_idcode"])])
     logger = Node(package="nni_msgs_adapter", executable="mcap_logger", name="mcap_logger", namespace=namespace,
                   ros_arguments=["--enclave", "/nni/mcap_logger"],
                   parameters=[config_file("mcap_logger"), {name: config[name] for name in LOGGER_ARGUMENTS}])
@@ -108,8 +113,7 @@ def generate_launch_description():
         *arguments("mcap_logger", LOGGER_ARGUMENTS),
         DeclareLaunchArgument("measurements", default_value="ros",
                               description="ros: the controller reads the plant's pmu; c37118: the plant's C37.118.2 "
-                                          "stream on loopback pmu_port, through the c37118_client node"),
-        DeclareLaunchArgument("pmu_port", default_value="4712", description="measurements c37118: the stream's port"),
+                                          "stream on pmu_port (4712 if none), through the c37118_client node"),
         DeclareLaunchArgument("use_security", default_value="false",
                               description="true: SROS2 (Enforce), each node in its enclave /nni/<node> of the "
                                           "keystore made by scripts/sros2_keystore; ROS 2 Jazzy installs only"),

@@ -22,10 +22,12 @@ scenario is refused, not ignored; ``fault_bus`` empty: the case's default bus,
 package's config YAML; the launch passes only what it sets. Every process is
 told how many the launch starts (``NNI_DDS_PARTICIPANTS``), so that the 54 of
 ``kundur_ring_52`` discover each other. The launch shuts down when the plant exits: the controllers and the
-logger get SIGINT, and the logger finishes the recording. With
-``measurements:=c37118`` the controllers read ``c37118/pmu``, fed from the
-plant's C37.118.2 stream on loopback ``pmu_port`` by a ``c37118_client`` node
-(as ``nni-demo --measurements c37118``).
+logger get SIGINT, and the logger finishes the recording. ``pmu_port`` (-1:
+none) serves every generator's PMU as an IEEE C37.118.2 stream, a station
+each, on that TCP port of ``pmu_host`` (loopback by default), IDCODE
+``pmu_idcode``. With ``measurements:=c37118`` the controllers read
+``c37118/pmu``, fed from that stream (on port 4712 when ``pmu_port`` gives
+none) by a ``c37118_client`` node (as ``nni-demo --measurements c37118``).
 
 ``launch`` is imported inside :func:`generate_launch_description` only, so
 that :func:`network_nodes` (the nodes a launch would create, as plain dicts)
@@ -36,7 +38,7 @@ import math
 
 import yaml
 
-from nni_battery_controller.demo_c37118 import MEASUREMENTS, client_parameters, plant_readers
+from nni_battery_controller.demo_c37118 import LAUNCH_PORT, MEASUREMENTS, client_host, client_parameters, plant_readers
 from nni_battery_controller.demo_c37118 import controller_parameters as measurement_topic
 from nni_battery_controller.demo_c37118 import plant_parameters as stream_parameters
 from nni_battery_controller.network_deployment import (
@@ -70,11 +72,12 @@ RUN_ARGUMENTS = {
     "alpha": (None, "alpha at every generator"),
     "output_path": ("network.mcap", "the MCAP recording of every namespace"),
     "measurements": ("ros", "how the controllers get the measurements: ros (the plant's pmu topics) or c37118 (the "
-                     "plant's IEEE C37.118.2 stream on loopback pmu_port, read by the c37118_client node)"),
-    "pmu_port": ("4712", "measurements c37118: the stream's loopback TCP port"),
+                     "plant's IEEE C37.118.2 stream on pmu_port, 4712 if none, read by the c37118_client node)"),
 }
 #: The network plant node's disturbance parameters, the launch arguments of the same names.
 SCENARIO_ARGUMENTS = ("scenario", *SCENARIO_PARAMETERS)
+#: The network plant node's C37.118 stream parameters, the launch arguments of the same names.
+STREAM_ARGUMENTS = ("pmu_port", "pmu_host", "pmu_idcode")
 #: (package, executable) of each node.
 PLANT = ("nni_plant_sim", "network_plant_node")
 CONTROLLER = ("nni_battery_controller", "controller_node")
@@ -110,6 +113,8 @@ def arguments() -> dict:
         if spec.array_of is not None:
             text += "; space-separated"
         table[name] = (_text(spec.default), text)
+    for name in STREAM_ARGUMENTS:
+        table[name] = (_text(specs[name].default), specs[name].description.rstrip("."))
     bus = table["fault_bus"][1]
     table["fault_bus"] = ("", f"{bus} (empty: 7 Kundur and the ring, 16 IEEE 39)")
     return table
@@ -155,6 +160,16 @@ def scenario_values(net, case: str, values: dict) -> dict:
                                                 if merged["scenario"] in scenarios}}
 
 
+def stream_values(values: dict) -> dict:
+    """The network plant node's C37.118 stream parameters for these launch argument texts (port -1: none)."""
+    specs = {spec.name: spec for spec in plant_node_parameters()}
+    try:
+        return {name: type(specs[name].default)(values[name]) for name in STREAM_ARGUMENTS}
+    except ValueError:
+        raise ValueError(f"pmu_port and pmu_idcode take integers, got {values['pmu_port']!r} and "
+                         f"{values['pmu_idcode']!r}") from None
+
+
 def network_nodes(given: dict) -> list[dict]:
     """The nodes a launch with these argument texts creates: ``package``, ``executable``, ``name``,
     ``namespace``, ``parameters`` (one dict), ``env`` (what the process gets beside the launch's environment);
@@ -171,11 +186,16 @@ def network_nodes(given: dict) -> list[dict]:
     law = NetworkLaw.uniform(net, *(float(_value(values[name])) for name in ("tau_s", "gain_k", "gain_l", "alpha")))
     limits = battery_limits(net.size, float(_value(values["battery_limit_pu"])),
                             generator_limits(values["gen_b"].split(), net.size, "gen_b"))
-    measurements, port = values["measurements"], int(_value(values["pmu_port"]))
+    measurements, stream = values["measurements"], stream_values(values)
     if measurements not in MEASUREMENTS:
         raise ValueError(f"measurements must be one of {', '.join(MEASUREMENTS)}, got {measurements!r}")
+    if measurements == "c37118":
+        if stream["pmu_port"] == 0:
+            raise ValueError("measurements:=c37118 needs a fixed pmu_port (the client connects to it), got 0")
+        port = LAUNCH_PORT if stream["pmu_port"] < 0 else stream["pmu_port"]
+        stream.update(stream_parameters(measurements, port, stream["pmu_host"]))
     plant = {**plant_parameters(case, scenario, values["mode"], rate, float(_value(values["duration_s"])),
-                                plant_readers(measurements, 2)), **stream_parameters(measurements, port)}
+                                plant_readers(measurements, 2)), **stream}
     nodes = [{"package": LOGGER[0], "executable": LOGGER[1], "name": "mcap_logger", "namespace": "",
               "parameters": {"output_path": values["output_path"]}}]
     nodes += [{"package": CONTROLLER[0], "executable": CONTROLLER[1], "name": "controller", "namespace": ns,
@@ -183,7 +203,8 @@ def network_nodes(given: dict) -> list[dict]:
               for i, ns in enumerate(namespaces(net))]
     if measurements == "c37118":  # it connects once the controllers and the logger read each c37118/pmu
         nodes.append({"package": CLIENT[0], "executable": CLIENT[1], "name": "c37118_client", "namespace": "",
-                      "parameters": client_parameters(port, values["mode"], 2, [f"/{ns}" for ns in namespaces(net)])})
+                      "parameters": client_parameters(port, values["mode"], 2, [f"/{ns}" for ns in namespaces(net)],
+                                                      client_host(stream["pmu_host"]), stream["pmu_idcode"])})
     nodes.append({"package": PLANT[0], "executable": PLANT[1], "name": "network_plant", "namespace": "",
                   "parameters": plant})
     # Every process learns how many there are: beyond 32 (the ring's 54) their discovery is widened to cover them.

@@ -1,8 +1,9 @@
 """``nni-demo --measurements c37118``: the demos' controllers fed through the plant's IEEE C37.118.2 stream.
 
 The plant serves its stream on a free loopback port (``pmu_port`` 0; the port
-read back from its "listening on" line), FREQ/DFREQ as floats, and starts
-its run only once one PDC has turned data on. The ``c37118_client`` node
+read back from its "listening on" line, :class:`.demo_pmu.StreamWatch`), or
+where ``--pmu-server`` puts it, FREQ/DFREQ as floats, and starts its run only
+once the client (and the PDCs ``--pmu-wait-for-pdcs`` asks for) turned data on. The ``c37118_client`` node
 (:mod:`nni_msgs_adapter.c37118.client_node`, station k in the k-th
 generator's namespace) connects once every station's ``c37118/pmu`` has its
 readers (the controllers and the logger) and publishes each station there;
@@ -24,10 +25,10 @@ MEASUREMENTS = ("ros", "c37118")
 CLIENT_MODULE = "nni_msgs_adapter.c37118.client_node"
 #: The controllers' measurement topic (``measurement_topic``) fed through the stream.
 STREAM_TOPIC = "c37118/pmu"
-#: Seconds the plant gets to say where it listens, and the client to connect once started.
-LISTEN_WAIT_S = 30.0
+#: Where a launch file serves the client's stream when its ``pmu_port`` gives none (C37.118's customary port).
+LAUNCH_PORT = 4712
+#: Seconds the client gets to connect once started.
 CONNECT_WAIT_S = 60.0
-_LISTENING = "listening on "
 _CONNECTED = "connected to PMU"
 
 
@@ -38,21 +39,12 @@ def add_measurements_option(parser) -> None:
                              "node (rates 10, 25, 50, 100 frames/s at 50 Hz; 10 ... 120 at 60 Hz)")
 
 
-def check_stream(args, nominal_hz: float) -> None:
-    """CliError (one line) when ``--measurements c37118`` asks for a stream C37.118 cannot carry."""
-    if args.measurements != "c37118":
-        return
-    try:
-        profile.stream_config(1, ("check",), args.rate, nominal_hz, False, "float")
-    except ValueError as error:
-        raise CliError(f"--measurements c37118: {error}") from None
-
-
-def plant_parameters(measurements: str, port: int = 0) -> dict:
-    """The plant's stream parameters, on loopback ``port`` (0: a free one); none for measurements ``ros``."""
+def plant_parameters(measurements: str, port: int = 0, host: str = "127.0.0.1", other_pdcs: int = 0) -> dict:
+    """The plant's stream parameters for the client at ``host:port`` (0: a free port): FREQ as floats, the run
+    waiting for the client and ``other_pdcs`` more; none for measurements ``ros``."""
     if measurements != "c37118":
         return {}
-    return {"pmu_port": port, "pmu_host": "127.0.0.1", "pmu_freq_format": "float", "pmu_wait_for_pdcs": 1}
+    return {"pmu_port": port, "pmu_host": host, "pmu_freq_format": "float", "pmu_wait_for_pdcs": other_pdcs + 1}
 
 
 def controller_parameters(measurements: str) -> dict:
@@ -66,26 +58,30 @@ def plant_readers(measurements: str, readers: int, bridge: bool = False) -> int:
     return (1 if measurements == "c37118" else readers) + bridge
 
 
-def client_parameters(port: int, mode: str, readers: int, namespaces=()) -> dict:
-    """The client node's parameters: the stream on loopback ``port``, the plant's ``mode`` (a launch passes its
-    substitutions), station k in the k-th of ``namespaces`` (none: one station, the node's own namespace),
+def client_host(server_host: str) -> str:
+    """Where the client connects to a stream that listens on ``server_host``: every interface read on loopback."""
+    return "127.0.0.1" if server_host in ("0.0.0.0", "::") else server_host
+
+
+def client_parameters(port: int, mode: str, readers: int, namespaces=(), host: str = "127.0.0.1",
+                      idcode: int = 1) -> dict:
+    """The client node's parameters: the stream ``idcode`` at ``host:port``, the plant's ``mode`` (a launch passes
+    its substitutions), station k in the k-th of ``namespaces`` (none: one station, the node's own namespace),
     connecting once each has ``readers``."""
-    params = {"pmu_host": "127.0.0.1", "pmu_port": port, "mode": mode, "wait_for_subscribers": readers,
+    params = {"pmu_host": host, "pmu_port": port, "pmu_idcode": idcode, "mode": mode, "wait_for_subscribers": readers,
               "max_age_s": controller_defaults()["stamp_tolerance_s"]}
     return {**params, "namespaces": list(namespaces)} if namespaces else params
 
 
-def start_client(procs, plant, measurements: str, mode: str, readers: int, namespaces=()):
-    """The client node, on the stream ``plant`` (in ``mode``) says it listens on; it connects once each station's
-    topic has ``readers`` subscribers. None for measurements ``ros``."""
+def start_client(procs, where: str, measurements: str, mode: str, readers: int, namespaces=(), idcode: int = 1):
+    """The client node, on the stream at ``where`` (``host:port`` as the plant says it listens; every interface
+    read on loopback), in the plant's ``mode``; it connects once each station's topic has ``readers``
+    subscribers. None for measurements ``ros``."""
     if measurements != "c37118":
         return None
-    try:
-        line = plant.wait_for_line("C37.118 PMU stream", LISTEN_WAIT_S, lambda text: _LISTENING in text)
-    except ChildError as error:
-        raise CliError(f"the plant's C37.118 stream did not start: {error}") from None
-    _, port = profile.parse_server_address(line.split(_LISTENING, 1)[1].split()[0])
-    return procs.start_node("c37118_client", CLIENT_MODULE, client_parameters(port, mode, readers, namespaces))
+    host, port = profile.parse_server_address(where)
+    return procs.start_node("c37118_client", CLIENT_MODULE,
+                            client_parameters(port, mode, readers, namespaces, client_host(host), idcode))
 
 
 def wait_connected(client, label: str) -> None:

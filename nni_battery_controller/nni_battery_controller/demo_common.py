@@ -85,8 +85,11 @@ def plant_summary(output: str, prefix: str = SUMMARY_PREFIX) -> dict:
     raise CliError("the plant did not report its final diagnostics")
 
 
-def wait_for_plant(plant, args, label: str, limit_s: float, prefix: str = SUMMARY_PREFIX) -> None:
-    """Wait for the plant's final summary line (``prefix``); on a terminal, show a realtime run's progress."""
+def wait_for_plant(plant, args, label: str, limit_s: float, prefix: str = SUMMARY_PREFIX, watch=None) -> None:
+    """Wait for the plant's final summary line (``prefix``); on a terminal, show a realtime run's progress.
+
+    ``watch`` (a :class:`.demo_pmu.StreamWatch`): its C37.118 stream's events printed as they come.
+    """
     show = args.mode == "realtime" and sys.stderr.isatty()
     deadline, started, shown = time.monotonic() + limit_s, None, ""
     while prefix not in plant.output():
@@ -94,6 +97,12 @@ def wait_for_plant(plant, args, label: str, limit_s: float, prefix: str = SUMMAR
             return
         if time.monotonic() > deadline:
             raise CliError(f"the plant did not finish within {limit_s:.0f} s (logs in {plant.log_path.parent})")
+        events = watch.follow() if watch is not None else []
+        if events:
+            if shown:  # the progress line is redrawn below the events
+                print("\r\033[K", end="", file=sys.stderr, flush=True)
+                shown = ""
+            print("\n".join(events), flush=True)
         if show:
             if started is None and "started in" in plant.output():
                 started = time.monotonic()
@@ -109,13 +118,18 @@ def wait_for_plant(plant, args, label: str, limit_s: float, prefix: str = SUMMAR
         print("\r\033[K", end="", file=sys.stderr, flush=True)
 
 
-def finish_plant(procs, plant, args, label: str, prefix: str = SUMMARY_PREFIX) -> None:
-    """The plant's run to its end (bounded wait), its clean exit, then the drain for the recorders; else CliError."""
-    wait_for_plant(plant, args, label, run_time_limit_s(args), prefix)
+def finish_plant(procs, plant, args, label: str, prefix: str = SUMMARY_PREFIX, watch=None) -> None:
+    """The plant's run to its end (bounded wait), its clean exit, then the drain for the recorders; else CliError.
+
+    ``watch``: the plant's C37.118 stream, whose events are printed as they come, the last ones at its exit.
+    """
+    wait_for_plant(plant, args, label, run_time_limit_s(args), prefix, watch)
     try:
         status = plant.wait_exit(procs.grace_s)
     except ChildError as error:
         raise CliError(str(error)) from None
+    for line in watch.follow() if watch is not None else []:
+        print(line, flush=True)
     if status != 0:
         raise CliError(f"the {plant.name} exited with status {status}: {plant.tail()}")
     time.sleep(DRAIN_S)

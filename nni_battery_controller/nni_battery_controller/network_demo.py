@@ -14,6 +14,8 @@ any generator's battery was commanded by anyone but its controller, or applied
 more than its b, is reported as compromised (exit status 3). With
 ``--measurements c37118`` the controllers are fed through the plant's
 C37.118.2 stream and the client node (:mod:`nni_battery_controller.demo_c37118`).
+With ``--pmu-server`` the network plant also serves every generator's PMU as an
+IEEE C37.118.2 stream, a station each (:mod:`nni_battery_controller.demo_pmu`).
 Killed, it takes its processes with it.
 """
 
@@ -43,6 +45,7 @@ from nni_battery_controller.demo_common import (
     software_version,
     write_summary,
 )
+from nni_battery_controller.demo_pmu import StreamWatch, add_pmu_options, stream_parameters, summary_line, wait_text
 from nni_battery_controller.demo_viewer import (
     BRIDGE_WAIT_S,
     add_rerun_option,
@@ -134,6 +137,7 @@ def build_parser() -> OneLineParser:
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
     add_rerun_option(parser)
     demo_c37118.add_measurements_option(parser)
+    add_pmu_options(parser)
     parser.add_argument("--deployment", choices=DEPLOYMENTS, default="separate",
                         help="separate: one controller process per generator (default); composed: all the case's "
                              "controllers as nodes of one composed_controllers process, on one executor")
@@ -169,7 +173,7 @@ def parse_arguments(argv=None):
     args.law = NetworkLaw.uniform(net, *(getattr(defaults, name) if getattr(args, dest) is None else getattr(args, dest)
                                          for dest, name in GAINS), reference=args.reference)
     args.gen_limits = generator_limits(args.gen_b, net.size)
-    demo_c37118.check_stream(args, float(net.f0_hz))
+    args.stream = stream_parameters(args, given_options(argv), float(net.f0_hz))
     check_ranges("network plant", plant_node_parameters(), network_plant_parameters(args))
     for b in args.b:
         limits = battery_limits(net.size, b, args.gen_limits)
@@ -180,11 +184,12 @@ def parse_arguments(argv=None):
 
 
 def network_plant_parameters(args) -> dict:
-    """The network plant's parameters of a run: it waits for each pmu's readers (a Rerun bridge among them)."""
+    """The network plant's parameters of every run: the case, its disturbance, the run, its stream; it waits for
+    each pmu's readers (a Rerun bridge among them)."""
     readers = demo_c37118.plant_readers(args.measurements, pmu_readers(args.net, args.reference),
                                         args.rerun is not None)
     return {**plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration, readers),
-            **demo_c37118.plant_parameters(args.measurements)}
+            **args.stream}
 
 
 def controllers_parameters(args, limits) -> dict:
@@ -303,10 +308,13 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
         started_controllers = start_controllers(procs, controllers, args.deployment)
         wait_for_recorder(logger, spaces, logs)
         plant = procs.start_node("network_plant", PLANT, plant_params)
-        client = demo_c37118.start_client(procs, plant, args.measurements, args.mode,
-                                          pmu_readers(net, args.reference), [f"/{ns}" for ns in spaces])
+        watch = StreamWatch(plant) if args.stream else None
+        where = watch.listening() if watch is not None else None
+        client = demo_c37118.start_client(procs, where, args.measurements, args.mode,
+                                          pmu_readers(net, args.reference), [f"/{ns}" for ns in spaces],
+                                          args.pmu_idcode)
         demo_c37118.wait_connected(client, run_label(args, b))
-        finish_plant(procs, plant, args, run_label(args, b), SUMMARY_PREFIX)
+        finish_plant(procs, plant, args, run_label(args, b), SUMMARY_PREFIX, watch)
         for controller in started_controllers:
             controller.stop()
         if logger.stop() != 0:
@@ -333,6 +341,8 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
               "wall_time_s": round(wall_s, 3),
               "generators": {ns: generator_result(g, loops[ns], counts, ns)
                              for ns, g in zip(spaces, outcome_json["generators"])}}
+    if watch is not None:
+        result["c37118"] = watch.summary()
     compromised = {ns: reasons for i, ns in enumerate(spaces)
                    if (reasons := compromised_reasons(loops[ns], runs[f"/{ns}"], float(limits[i])))}
     if compromised:
@@ -381,6 +391,8 @@ def show_run(args, b: float, env: dict, bridge, index: int, plotted: list) -> di
         print(textwrap.indent(format_run(outcome, b, args.reference, net), "  "))
     print("\n".join(loop_table(result, net, limits) + clipped_lines(result)))
     print(f"  wall {result['wall_time_s']:.1f} s, recording {result['recording']}")
+    if "c37118" in result:
+        print(summary_line(result["c37118"]))
     return result
 
 
@@ -405,6 +417,8 @@ def main(argv=None) -> int:
                           for name, values in (("tau", law.tau_s), ("K", law.gain_k), ("L", law.gain_l),
                                                ("alpha", law.alpha)))
         print(f"  {args.description}; g measured, angle reference {args.reference}; {gains}")
+        if wait_text(args):
+            print(f"  {wait_text(args)}")
         results, plotted = [], []
         sink = rerun_sink(args.rerun) if args.rerun else None
         with Supervisor(env, args.out) as viewer:

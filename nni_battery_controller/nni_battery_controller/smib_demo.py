@@ -9,7 +9,10 @@ period), and reads the recording back to write ``OUT/summary.json``: the keys of
 measurement to command arrival at the plant) and dropped / late sample counts
 from the plant's final diagnostics. A run in which the battery was commanded by
 anyone but its controller, or applied more than b, is reported as compromised
-(exit status 3). With ``--rerun`` a Rerun bridge is part of every run: the
+(exit status 3). With ``--pmu-server`` each run's plant also serves its PMU
+as an IEEE C37.118.2 stream (:mod:`nni_battery_controller.demo_pmu`): where
+it listens, each PDC's arrival and departure, and its counters are printed,
+the counters also in the summary (``c37118``). With ``--rerun`` a Rerun bridge is part of every run: the
 plant starts only once the bridge hears it, and a run ends only when the
 bridge has logged every sample the recording holds. With ``--measurements
 c37118`` the controller is fed through the plant's C37.118.2 stream and the
@@ -41,6 +44,7 @@ from nni_battery_controller.demo_common import (
     software_version,
     write_summary,
 )
+from nni_battery_controller.demo_pmu import StreamWatch, add_pmu_options, stream_parameters, summary_line, wait_text
 from nni_battery_controller.demo_viewer import (
     BRIDGE_WAIT_S,
     add_rerun_option,
@@ -69,8 +73,8 @@ from nni_plant_sim.cases import CASES
 from nni_plant_sim.scenarios import SCENARIO_FIELDS
 
 #: Plant parameters that set up a run without changing its case (the recording name ignores them).
-RUN_CONTROL = frozenset({"mode", "duration_s", "pmu_rate_hz", "wait_for_subscribers", "pmu_port", "pmu_host",
-                         "pmu_freq_format", "pmu_wait_for_pdcs"})
+RUN_CONTROL = frozenset({"mode", "duration_s", "pmu_rate_hz", "wait_for_subscribers", "pmu_host", "pmu_port",
+                         "pmu_idcode", "pmu_freq_format", "pmu_wait_for_pdcs"})
 
 
 def build_parser() -> OneLineParser:
@@ -87,6 +91,7 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder, created (default: out/demo)")
     add_rerun_option(parser)
     demo_c37118.add_measurements_option(parser)
+    add_pmu_options(parser)
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
     parser.add_argument("--case", metavar="CASE",
@@ -119,8 +124,7 @@ def plant_parameters(args, with_bridge: bool) -> dict:
     # It waits for the controller and the logger, and for the Rerun bridge when there is one.
     return {**args.model.plant_node_parameters(), "mode": args.mode, "duration_s": args.duration,
             "pmu_rate_hz": args.rate,
-            "wait_for_subscribers": demo_c37118.plant_readers(args.measurements, 2, with_bridge),
-            **demo_c37118.plant_parameters(args.measurements)}
+            "wait_for_subscribers": demo_c37118.plant_readers(args.measurements, 2, with_bridge), **args.stream}
 
 
 def controller_parameters(args, b: float) -> dict:
@@ -180,9 +184,11 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
             "run_metadata": json.dumps(run_metadata(args, plant_params, controller_params))})
         controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params)
         plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params)
-        client = demo_c37118.start_client(procs, plant, args.measurements, args.mode, 2)
+        watch = StreamWatch(plant) if args.stream else None
+        where = watch.listening() if watch is not None else None
+        client = demo_c37118.start_client(procs, where, args.measurements, args.mode, 2, idcode=args.pmu_idcode)
         demo_c37118.wait_connected(client, f"b = {b:<5g}")
-        finish_plant(procs, plant, args, f"b = {b:<5g}")
+        finish_plant(procs, plant, args, f"b = {b:<5g}", watch=watch)
         controller.stop()
         if logger.stop() != 0:
             raise CliError(f"the logger failed: {logger.tail()}")
@@ -208,6 +214,8 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
         "late_samples": int(diag.get("late", 0)),
         "logger_counts": counts,
     })
+    if watch is not None:
+        outcome["c37118"] = watch.summary()
     reasons = compromised_reasons(summary, run, b)
     if reasons:
         outcome["compromised"] = reasons
@@ -223,13 +231,15 @@ def run_all(args, env: dict, bridge=None) -> tuple[list[dict], list[Trajectory]]
         trajectories.append(traj)
         if "compromised" in run:
             print(f"  b = {b:<5g} {compromised_text(b, run['compromised'])}")
-            continue
-        lat = run["latency_ms"]
-        print(f"  b = {b:<5g} {verdict_text(run):<34} "
-              f"max|d| {run['max_abs_angle_dev_rad']:8.4f} rad  max|P_ST| {run['max_abs_battery_power_pu']:.4f} pu"
-              f"  latency p50/p99/max {lat.get('p50', math.nan):.2f}/{lat.get('p99', math.nan):.2f}/"
-              f"{lat.get('max', math.nan):.2f} ms  dropped {run['dropped_samples']}  late {run['late_samples']}"
-              f"  wall {run['wall_time_s']:.1f} s")
+        else:
+            lat = run["latency_ms"]
+            print(f"  b = {b:<5g} {verdict_text(run):<34} "
+                  f"max|d| {run['max_abs_angle_dev_rad']:8.4f} rad  max|P_ST| {run['max_abs_battery_power_pu']:.4f} pu"
+                  f"  latency p50/p99/max {lat.get('p50', math.nan):.2f}/{lat.get('p99', math.nan):.2f}/"
+                  f"{lat.get('max', math.nan):.2f} ms  dropped {run['dropped_samples']}  late {run['late_samples']}"
+                  f"  wall {run['wall_time_s']:.1f} s")
+        if "c37118" in run:
+            print(summary_line(run["c37118"]))
     return runs, trajectories
 
 
@@ -238,7 +248,8 @@ def parse_arguments(parser: OneLineParser, argv=None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     args.model = resolve_model(args, parser.prog)
     args.model.validate()
-    demo_c37118.check_stream(args, args.model.plant["f0_hz"])
+    args.stream = stream_parameters(args, given_options(sys.argv[1:] if argv is None else argv),
+                                    args.model.plant["f0_hz"])
     return args
 
 
@@ -259,6 +270,8 @@ def main(argv=None) -> int:
         print(f"nni-demo: {args.mode}, {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}"
               + (", measurements through C37.118" if args.measurements == "c37118" else ""))
         print(f"  {args.model.header()}")
+        if wait_text(args):
+            print(f"  {wait_text(args)}")
         with Supervisor(env, args.out) as viewer:
             bridge = start_viewer(viewer, sink, args.model.plant["f0_hz"]) if sink else None
             runs, trajectories = run_all(args, env, bridge)

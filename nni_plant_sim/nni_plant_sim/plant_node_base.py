@@ -18,7 +18,9 @@ the callback of the run's last sample; at exit also printed as one JSON line).
 With ``pmu_port`` it also serves every sample as IEEE C37.118.2
 (:mod:`.pmu_stream`: listening from the node's start, each PDC's connection
 and departure logged, the stream's counters as status ``c37118_server`` on
-``/diagnostics``; the run waits for ``pmu_wait_for_pdcs`` PDCs with data on).
+``/diagnostics``; the run waits for ``pmu_wait_for_pdcs`` PDCs with data on;
+at exit its totals and each PDC's frames sent and dropped as one JSON line,
+``SUMMARY_PREFIX_STREAM``, before the plant's own).
 
 A plant node sets, in :meth:`_configure_plant`: ``namespaces`` (``("",)``:
 the node's own), ``_plant`` (what :func:`.integrators.advance` integrates),
@@ -41,7 +43,7 @@ from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.loop_node import LoopNode, StampedPublisher
 from nni_msgs_adapter.ros.ros_params import locked_changes
 from nni_plant_sim.plant_config import link_from
-from nni_plant_sim.pmu_stream import STREAM_PARAMETERS, PlantStream
+from nni_plant_sim.pmu_stream import STREAM_PARAMETERS, SUMMARY_PREFIX_STREAM, PlantStream
 from nni_plant_sim.reporting import CommandChannel, LockstepStepper, PmuSensor, RealtimeReporter, SubscriberWait
 from nni_plant_sim.scenarios import StartingAt
 
@@ -274,9 +276,11 @@ class PlantNodeBase(LoopNode):
         if self._loop is not None and self._finished_ns is None:
             self._finished_ns = self.now_ns()  # stopped: the run ends here, and its status says so
         generators = self.publish_diagnostics()
+        if self._stream is not None:  # stopped first: its summary holds every PDC's last frame and departure
+            self._stream.stop()
+            self._log_stream_events()
+            print(SUMMARY_PREFIX_STREAM + json.dumps(self._stream.summary()), flush=True)
         print(self.summary_prefix + json.dumps(generators[0] if self.namespaces == ("",) else
                                                dict(zip(self.namespaces, generators))), flush=True)
-        if self._stream is not None:
-            self._stream.stop()
         if self._gave_up:
             raise SystemExit(1)  # nobody to run with (node_main returns 0 after a node's normal end)

@@ -43,6 +43,8 @@ STAMPS_KEPT = 64
 STREAM_PARAMETERS = ("pmu_port", "pmu_host", "pmu_idcode", "pmu_freq_format", "pmu_wait_for_pdcs")
 #: ``pmu_port`` of a plant without a stream.
 NO_STREAM = -1
+#: Prefix of the JSON line with the stream's final counters (:meth:`PlantStream.summary`), printed at exit.
+SUMMARY_PREFIX_STREAM = "c37118_server summary: "
 #: The lockstep clock as the stream states it: simulated time, not synchronised to UTC.
 SIMULATED_CLOCK = ClockState(False, math.inf, True)
 
@@ -174,6 +176,17 @@ class PlantStream:
         self._reported = watched
         message = f"serving {self.where} to {counters['connected']} PDC(s), {self.streaming} with data on"
         return ("WARN", f"{message}; grew: {', '.join(grew)}", values) if grew else ("OK", message, values)
+
+
+    def summary(self) -> dict:
+        """The stream's address, its totals and, per PDC (connected or gone, in the order they came), its
+        address and the frames sent (configuration and header included) and dropped: what a demo reports."""
+        counters = self.server.counters()
+        pdcs = [{key: pdc[key] for key in ("address", "frames_sent", "frames_dropped", "bytes_sent")}
+                for pdc in (*counters["departed"], *counters["pdcs"])]
+        totals = {key: counters[key] for key in ("offered", "connections", "refused", "frames_sent", "frames_dropped",
+                                                 "handoff_dropped")}
+        return {"address": self.where, **totals, "pdcs": pdcs}
 
 
 def station_values(stat, magnitude, angle_rad, frequency_hz, rocof_hz_per_s, analog) -> c37.Measurements:

@@ -77,18 +77,22 @@ def station(name: str, number: int, nominal_hz: int, terminal: bool, freq_format
 
 def stream_config(idcode: int, names, rate_hz: float, nominal_hz: float, terminal: bool,
                   freq_format: str) -> c37.Config:
-    """The stream of a plant whose generators are ``names``; ValueError for a rate C37.118 does not allow.
+    """The stream of a plant whose generators are ``names``; ValueError for a rate C37.118 does not allow
+    (:func:`check_stream_rate`)."""
+    check_stream_rate(rate_hz, nominal_hz)
+    stations = tuple(station(name, k + 1, int(nominal_hz), terminal, freq_format) for k, name in enumerate(names))
+    return c37.Config(idcode, stations, int(rate_hz))
 
-    ``nominal_hz`` must be 50 or 60 and ``rate_hz`` one of the reporting rates C37.118.1 allows there.
-    """
+
+def check_stream_rate(rate_hz: float, nominal_hz: float) -> None:
+    """ValueError (one line) unless ``nominal_hz`` is 50 or 60 and ``rate_hz`` a reporting rate C37.118.1
+    allows there: what a plant, a demo and a replay check before they serve a stream."""
     if nominal_hz not in (50, 60):
         raise ValueError(f"a C37.118 stream needs a nominal frequency of 50 or 60 Hz, got {nominal_hz:g} Hz")
     if rate_hz != round(rate_hz):
         raise ValueError(f"reporting rate {rate_hz:g} frames/s is not one C37.118 allows at {nominal_hz:g} Hz: "
                          f"{', '.join(map(str, c37.ALLOWED_REPORTING_RATES[int(nominal_hz)]))}")
     c37.check_reporting_rate(int(rate_hz), int(nominal_hz))
-    stations = tuple(station(name, k + 1, int(nominal_hz), terminal, freq_format) for k, name in enumerate(names))
-    return c37.Config(idcode, stations, int(rate_hz))
 
 
 def stream_instant_ns(stamp_ns: int, lockstep: bool) -> int:

@@ -25,8 +25,10 @@ its own state:
   counters go to the totals). At most ``max_clients`` PDCs at once; more are
   closed at once and counted ``refused``.
 * :meth:`PmuServer.counters` gives totals and per-PDC counters as a dict
-  (for /diagnostics); :meth:`PmuServer.events` gives the lines to log (a PDC
-  connected, went away, turned data on or off, with its address).
+  (for /diagnostics; those of the last ``DEPARTED_KEPT`` PDCs that went away
+  too); :meth:`PmuServer.events` gives the lines to log (a PDC connected,
+  went away with what it was sent and lost, turned data on or off, with its
+  address).
 * configuration and header frames are stamped with ``clock_ns()`` when sent;
   data frames with their sample's instant.
 
@@ -50,6 +52,8 @@ from .stream import FrameReassembler
 
 #: C37.118's customary TCP port.
 DEFAULT_PORT = 4712
+#: PDCs that went away whose own counters :meth:`PmuServer.counters` still gives (a run's summary names them).
+DEPARTED_KEPT = 64
 #: Frames a PDC may have queued before its oldest are dropped: 2 s at 50 frames/s.
 DEFAULT_QUEUE_FRAMES = 100
 DEFAULT_MAX_CLIENTS = 64
@@ -131,6 +135,7 @@ class PmuServer:
         self._pdcs: dict[int, _Pdc] = {}
         self._lock = threading.Lock()
         self._events: collections.deque = collections.deque(maxlen=256)
+        self._departed: collections.deque = collections.deque(maxlen=DEPARTED_KEPT)
         self._totals = {"connections": 0, "disconnected": 0, "refused": 0, "frames_sent": 0, "frames_dropped": 0,
                         "bytes_sent": 0, "redundant": 0}
         self._commands: dict = {}
@@ -215,9 +220,11 @@ class PmuServer:
         return drain(self._events)
 
     def counters(self) -> dict:
-        """Totals (over every PDC ever connected) and one dict per connected PDC."""
+        """Totals (over every PDC ever connected), one dict per connected PDC (``pdcs``) and per PDC that went
+        away (``departed``, the last :data:`DEPARTED_KEPT`, oldest first)."""
         with self._lock:
             pdcs = [pdc.counters() for pdc in self._pdcs.values()]
+            departed = list(self._departed)
             totals = dict(self._totals)
             commands, rejected = dict(self._commands), dict(self._rejected)
         for pdc in pdcs:
@@ -226,7 +233,7 @@ class PmuServer:
             merge(commands, pdc["commands"])
             merge(rejected, pdc["rejected"])
         return {"connected": len(pdcs), **totals, "offered": self.offered, "handoff_dropped": self.handoff_dropped,
-                "commands": commands, "rejected": rejected, "pdcs": pdcs}
+                "commands": commands, "rejected": rejected, "pdcs": pdcs, "departed": departed}
 
     # --- the I/O thread ---------------------------------------------------------------------------
 
@@ -372,9 +379,12 @@ class PmuServer:
             self._streaming -= 1
         self._totals["disconnected"] += 1
         # Frames still queued for a PDC that went away were never delivered: they count as dropped.
-        for key, value in (("frames_sent", pdc.frames_sent), ("frames_dropped", pdc.frames_dropped + len(pdc.queue)),
-                           ("bytes_sent", pdc.bytes_sent), ("redundant", pdc.redundant)):
-            self._totals[key] += value
+        record = {**pdc.counters(), "data_on": False, "queued": 0,
+                  "frames_dropped": pdc.frames_dropped + len(pdc.queue), "why": why}
+        for key in ("frames_sent", "frames_dropped", "bytes_sent", "redundant"):
+            self._totals[key] += record[key]
         merge(self._commands, pdc.commands)
         merge(self._rejected, pdc.rejected)
-        self._events.append(f"PDC {pdc.address} went away ({why})")
+        self._departed.append(record)
+        self._events.append(f"PDC {pdc.address} went away ({why}): sent {record['frames_sent']} frames, "
+                            f"dropped {record['frames_dropped']}")
