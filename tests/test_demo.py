@@ -172,8 +172,8 @@ def test_live_rerun_realtime_starts_at_zero_under_load(tmp_path):
 def test_demo_waits_for_the_bridge_before_the_plant_starts():
     """With a bridge the plant waits for three pmu subscribers: controller, logger and the bridge."""
     args = parse_arguments(build_parser(), [])
-    assert plant_parameters(args, with_bridge=True)["wait_for_subscribers"] == 3
-    assert plant_parameters(args, with_bridge=False)["wait_for_subscribers"] == 2
+    assert plant_parameters(args, 0.3, with_bridge=True)["wait_for_subscribers"] == 3
+    assert plant_parameters(args, 0.3, with_bridge=False)["wait_for_subscribers"] == 2
 
 
 def test_rerun_serve_prints_a_localhost_url_and_binds_to_localhost(tmp_path):
@@ -280,7 +280,7 @@ def test_compromised_reasons():
 
 def test_recording_names_follow_the_scenario():
     args = parse_arguments(build_parser(), [])
-    paper = plant_parameters(args, with_bridge=False)
+    paper = plant_parameters(args, 0.3, with_bridge=False)
     assert recording_name(0.3, paper) == "paper_b0.3.mcap"
     assert recording_name(math.inf, {**paper, "mode": "realtime", "duration_s": 3.0}) == "paper_binf.mcap"
     fault = {**paper, "scenario": "transfer_limit_fault", "clearing_time_s": 0.2}
@@ -290,8 +290,9 @@ def test_recording_names_follow_the_scenario():
 
 def test_run_metadata_holds_every_node_parameter():
     args = parse_arguments(build_parser(), ["--b", "0.3"])
-    plant = plant_parameters(args, with_bridge=False)
+    plant = plant_parameters(args, 0.3, with_bridge=False)
     meta = run_metadata(args, plant, controller_parameters(args, 0.3))
+    assert plant["battery_rating_pu"] == 0.3 and plant["hold_until_released"] is True, "the battery is rated b"
     assert set(meta) == {"scenario", "plant", "controller", "mode", "rate_hz", "software_version"}
     assert meta["scenario"] == {"name": "initial_angle", "delta0_rad": 0.2, "speed0_rad_s": 0.0}
     assert meta["plant"]["mode"] == "lockstep" and meta["plant"]["p_mech_pu"] == 0.8

@@ -22,6 +22,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from nni_battery_controller.demo_common import start_when_read_back
 from nni_battery_controller.network_common import format_run
 from nni_battery_controller.network_deployment import controller_parameters, default_law, generator_limits
 from nni_battery_controller.network_sim import NetworkLaw, assess_network, simulate_network
@@ -281,8 +282,8 @@ def test_coi_reference_and_a_displacement_run_as_offline_and_stream_every_genera
 def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
     """The issue's Done-when: ten controller processes, per-generator results, no process left (1 s lockstep).
 
-    No battery but at G10, unlimited there: from 0.32 s on, its controller asks for more than the
-    plant's 1 pu rating, which clips it; the demo says so for /gen10 alone.
+    No battery but at G10, unlimited there: from 0.32 s on, its controller asks for more than 1 pu, and the
+    plant, whose battery there is rated b (unlimited, as the user said), applies it: nothing is clipped.
     """
     domain = fresh_domain_id()
     result, children, marker = run_demo(["--case", "ieee39", "--b", "0", "--gen-b", "10=inf", "--duration", "1",
@@ -300,9 +301,10 @@ def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
     assert list(run["generators"]) == [f"gen{i}" for i in range(1, 11)]
     assert all(g["samples"] == 50 and g["dropped_samples"] == 0 for g in run["generators"].values())
     clipped = [line.split(":")[0].strip() for line in result.stdout.splitlines() if "were clipped to it" in line]
-    assert clipped == ["/gen10"], result.stdout
-    assert run["generators"]["gen10"]["trust"]["clipped_commands"] > 0
-    assert run["generators"]["gen10"]["max_abs_battery_power_pu"] == 1.0
+    assert clipped == [], result.stdout
+    assert all(g["trust"]["clipped_commands"] == 0 for g in run["generators"].values())
+    assert run["generators"]["gen10"]["max_abs_battery_power_pu"] > 1.0
+    assert all(run["generators"][f"gen{i}"]["max_abs_battery_power_pu"] == 0.0 for i in range(1, 10)), "b = 0"
     assert sorted(p.name for p in (tmp_path / "logs").glob("*/controller_gen*.log")) == sorted(
         f"controller_gen{i}.log" for i in range(1, 11))
 
@@ -474,6 +476,9 @@ def test_the_launch_files_nodes_run_the_network_and_record_every_generator(netwo
                          ("-r", f"__ns:=/{n['namespace']}") if n["namespace"] else (), n["env"])
                    for n in nodes]
         plant, logger = started[-1], started[0]
+        # As the launch's output handlers do: the plant's run starts once every node stated what it was given.
+        start_when_read_back([(child, passed) for child, passed in zip(started, network_launch.readbacks(nodes))
+                              if passed], plant, tmp_path)
         assert plant.wait(timeout=180.0) == 0, plant.output()
         time.sleep(0.5)  # the last reliable messages land
         assert logger.interrupt(15.0) == 0, logger.output()

@@ -14,13 +14,22 @@ to the controller's model of it, ``pmu_rate_hz`` to the plant and as
 argument puts one generator's loop under /<namespace>. With ``duration_s > 0``
 the launch shuts down when the plant exits: the controller and the logger get
 SIGINT, and the logger finishes the recording.
+
+The plant's battery is rated b (``battery_limit_pu``: it clips every command
+there). Each launch makes a fresh command key, handed to the plant and the
+controller only (``NNI_COMMAND_KEY_FILE``) and removed at shutdown, and starts
+the plant's run only once both nodes have stated at start the parameters it
+gave them (:mod:`nni_msgs_adapter.ros.launch_trust`); on a difference it logs
+one line and shuts down before any sample.
 """
 
 import os
 
+import yaml
+
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, EmitEvent, RegisterEventHandler, SetEnvironmentVariable
+from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler, SetEnvironmentVariable
 from launch.conditions import IfCondition
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
@@ -33,7 +42,7 @@ from nni_msgs_adapter.ros.defaults import load_defaults
 #: Launch arguments that are plant parameters (package nni_plant_sim, config/plant.yaml).
 PLANT_ARGUMENTS = (
     "mode", "pmu_rate_hz", "duration_s", "scenario", "delta0_rad", "speed0_rad_s", "step_p_mech_pu",
-    "step_duration_s", "fault_p_max_pu", "clearing_time_s", "damping_pu", "battery_rating_pu",
+    "step_duration_s", "fault_p_max_pu", "clearing_time_s", "damping_pu",
 )
 #: Launch arguments that are controller parameters (package nni_battery_controller, config/controller.yaml).
 CONTROLLER_ARGUMENTS = ("tau_s", "gain_k", "gain_l", "alpha", "battery_limit_pu")
@@ -63,24 +72,52 @@ def arguments(node: str, names) -> list:
             for name in names]
 
 
+def launched_nodes(values: dict) -> dict:
+    """``{node: the parameters the launch gives it beside its config YAML}`` for the launch arguments ``values``
+    (each as a value): the plant's battery rated the controller's b, its run held for the read-back."""
+    return {
+        "plant": {**{name: values[name] for name in (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS)},
+                  "battery_rating_pu": values["battery_limit_pu"], "hold_until_released": True,
+                  "wait_for_subscribers": 2},  # the controller and the logger
+        "controller": {**{name: values[name] for name in (*CONTROLLER_ARGUMENTS, *MODEL_ARGUMENTS)},
+                       "sample_rate_hz": values["pmu_rate_hz"]},
+        "mcap_logger": {name: values[name] for name in LOGGER_ARGUMENTS},
+    }
+
+
 def generate_launch_description():
-    config = {name: LaunchConfiguration(name)
-              for name in (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS, *CONTROLLER_ARGUMENTS, *LOGGER_ARGUMENTS)}
-    namespace = LaunchConfiguration("namespace")
+    from nni_battery_controller.controller_config import parameters as controller_node_parameters
+    from nni_msgs_adapter.ros.launch_trust import readback_release, run_key_environment
+    from nni_msgs_adapter.ros.readback import expected_parameters
+    from nni_plant_sim.plant_config import parameters as plant_node_parameters
+
+    names = (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS, *CONTROLLER_ARGUMENTS, *LOGGER_ARGUMENTS)
+
+    def setup(context):
+        values = {name: yaml.safe_load(context.launch_configurations[name]) for name in names}
+        given = launched_nodes(values)
+        namespace = context.launch_configurations["namespace"]
+        key_env, remove_key = run_key_environment()  # the plant's and the controller's, not the logger's
+        plant = Node(package="nni_plant_sim", executable="plant_node", name="plant", namespace=namespace,
+                     ros_arguments=["--enclave", "/nni/plant"], parameters=[config_file("plant"), given["plant"]],
+                     additional_env=key_env)
+        controller = Node(package="nni_battery_controller", executable="controller_node", name="controller",
+                          namespace=namespace, ros_arguments=["--enclave", "/nni/controller"],
+                          parameters=[config_file("controller"), given["controller"]], additional_env=key_env)
+        logger = Node(package="nni_msgs_adapter", executable="mcap_logger", name="mcap_logger", namespace=namespace,
+                      ros_arguments=["--enclave", "/nni/mcap_logger"],
+                      parameters=[config_file("mcap_logger"), given["mcap_logger"]])
+        prefix = "/".join(("", *filter(None, (namespace.strip("/"),))))
+        started = [(controller, {f"{prefix}/controller": expected_parameters(controller_node_parameters(),
+                                                                              given["controller"])}),
+                   (plant, {f"{prefix}/plant": expected_parameters(plant_node_parameters(), given["plant"])})]
+        # The plant runs once both nodes stated what they were given; the run is over when it exits
+        # (duration_s > 0): stop the others, finish the recording.
+        return [*remove_key, *readback_release(started, plant), logger, controller, plant,
+                RegisterEventHandler(OnProcessExit(target_action=plant, on_exit=[
+                    EmitEvent(event=Shutdown(reason="the plant finished its run"))]))]
+
     secure = IfCondition(LaunchConfiguration("use_security"))
-    plant = Node(package="nni_plant_sim", executable="plant_node", name="plant", namespace=namespace,
-                 ros_arguments=["--enclave", "/nni/plant"],
-                 parameters=[config_file("plant"),
-                             {**{name: config[name] for name in (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS)},
-                              "wait_for_subscribers": 2}])  # the controller and the logger
-    controller = Node(package="nni_battery_controller", executable="controller_node", name="controller",
-                      namespace=namespace, ros_arguments=["--enclave", "/nni/controller"],
-                      parameters=[config_file("controller"),
-                                  {**{name: config[name] for name in (*CONTROLLER_ARGUMENTS, *MODEL_ARGUMENTS)},
-                                   "sample_rate_hz": config["pmu_rate_hz"]}])
-    logger = Node(package="nni_msgs_adapter", executable="mcap_logger", name="mcap_logger", namespace=namespace,
-                  ros_arguments=["--enclave", "/nni/mcap_logger"],
-                  parameters=[config_file("mcap_logger"), {name: config[name] for name in LOGGER_ARGUMENTS}])
     return LaunchDescription([
         DeclareLaunchArgument("namespace", default_value="", description="namespace of this generator's nodes"),
         *arguments("plant", (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS)),
@@ -94,10 +131,5 @@ def generate_launch_description():
         SetEnvironmentVariable("ROS_SECURITY_ENABLE", "true", condition=secure),
         SetEnvironmentVariable("ROS_SECURITY_STRATEGY", "Enforce", condition=secure),
         SetEnvironmentVariable("ROS_SECURITY_KEYSTORE", LaunchConfiguration("keystore"), condition=secure),
-        logger,
-        controller,
-        plant,
-        # The run is over when the plant exits (duration_s > 0): stop the others, finish the recording.
-        RegisterEventHandler(OnProcessExit(target_action=plant, on_exit=[
-            EmitEvent(event=Shutdown(reason="the plant finished its run"))])),
+        OpaqueFunction(function=setup),
     ])
