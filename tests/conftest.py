@@ -12,6 +12,22 @@ from pathlib import Path
 
 import pytest
 
+#: The test modules of the pure cores: no ROS, no node, no DDS (``./scripts/test --quick`` runs them with
+#: the one ``smoke`` test). tests/test_markers.py checks that none of them starts a node or imports rclpy.
+CORE_TEST_MODULES = frozenset({
+    "test_bench_report", "test_c37118_client", "test_c37118_frames", "test_c37118_server", "test_c37118_stream",
+    "test_closed_loop", "test_controller_core", "test_controller_law", "test_import_graph",
+    "test_input_gate", "test_link", "test_loop_stats", "test_markers", "test_network", "test_network_andes",
+    "test_network_law", "test_plant_model", "test_reporting", "test_simulation", "test_synthetic_case",
+})
+
+
+def pytest_collection_modifyitems(items):
+    """Mark every test of a :data:`CORE_TEST_MODULES` module ``core``."""
+    for item in items:
+        if item.module.__name__ in CORE_TEST_MODULES:
+            item.add_marker(pytest.mark.core)
+
 from nni_battery_controller.law import ControllerParams
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.scenarios import InitialAngle

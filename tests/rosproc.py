@@ -35,6 +35,14 @@ def _domain_range() -> range:
     domains = range(int(low), int(high) + 1)
     if not domains or domains.start < 0 or domains.stop > 233:
         raise ValueError(f"NNI_TEST_DOMAINS must be LO-HI within 0..232, got {text!r}")
+    # A pytest-xdist worker (gw0, gw1, ...) takes its own share of the range.
+    worker, workers = os.environ.get("PYTEST_XDIST_WORKER"), int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if worker is not None and workers > 1:
+        share = len(domains) // workers
+        if share < 1:
+            raise ValueError(f"NNI_TEST_DOMAINS {text} has fewer domains than the {workers} test workers")
+        index = int(worker.removeprefix("gw"))
+        domains = domains[index * share:(index + 1) * share]
     return domains
 
 

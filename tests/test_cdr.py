@@ -145,6 +145,8 @@ def test_the_peers_bytes_read_back_in_place_and_any_other_message_through_rclpy(
     assert contract.command_from_bytes(serialize_message(contract.command_message(9, 0.5, seal))) == (9, 0.5, seal)
     two = cdr.joint_state("generator", (contract.ROTOR_JOINT,), (1, 1, 2)).pack(3, 0.1, 0.2, 0.3, 0.4)
     assert contract.pmu_from_bytes(two) == ((3, 0.1, 0.2), (0.3, 0.4))
+    assert contract.clock_from_bytes(cdr.clock().pack(7_000_000_001)) == 7_000_000_001
+    assert contract.clock_from_bytes(serialize_message(Clock(clock=contract.time_from_ns(9)))) == 9
 
 
 @pytest.mark.parametrize("data", [
@@ -164,3 +166,31 @@ def test_bytes_that_are_no_command_are_a_contract_error(data):
 def test_bytes_that_are_no_measurement_are_a_contract_error(data):
     with pytest.raises(contract.ContractError):
         contract.pmu_from_bytes(data)
+
+
+@pytest.mark.parametrize("data", [b"", b"\x00\x01\x00\x00", cdr.clock().pack(1)[:-2]])
+def test_bytes_that_are_no_clock_are_a_contract_error(data):
+    with pytest.raises(contract.ContractError):
+        contract.clock_from_bytes(data)
+
+
+def test_the_plants_end_of_run_is_read_from_diagnostics_bytes_of_its_own_namespace_only():
+    """plant_run_ended reads /diagnostics bytes: the plant of the controller's namespace says run_ended True there.
+
+    Not another generator's plant (gen11 beside gen1), not a status without it or saying False, not bytes that are
+    no DiagnosticArray; the root namespace's plant is ``plant``.
+    """
+    from rclpy.serialization import serialize_message
+
+    def status(hardware_id: str, name: str, ended) -> bytes:
+        values = {"samples": 500, contract.RUN_ENDED: ended} if ended is not None else {"samples": 500}
+        return serialize_message(contract.diagnostics_message(1, name, hardware_id, "OK", "running", values))
+
+    ended = status("/gen1/plant", "plant", True)
+    assert contract.plant_run_ended(ended, "/gen1")
+    assert not contract.plant_run_ended(ended, "/gen11") and not contract.plant_run_ended(ended, "/")
+    assert not contract.plant_run_ended(status("/gen11/plant", "plant", True), "/gen1")
+    assert not contract.plant_run_ended(status("/gen1/plant", "plant", False), "/gen1")
+    assert not contract.plant_run_ended(status("/gen1/controller", "controller", None), "/gen1")
+    assert contract.plant_run_ended(status("/plant", "plant", True), "/")
+    assert not contract.plant_run_ended(b"gen1/plant True" + bytes(40), "/gen1")

@@ -56,6 +56,7 @@ def states_array(messages) -> np.ndarray:
     return np.array(rows)
 
 
+@pytest.mark.smoke
 def test_lockstep_equals_offline_sampled_simulation(tmp_path):
     """Lockstep over DDS reproduces simulate_sampled at the same rate.
 

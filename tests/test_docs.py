@@ -111,3 +111,27 @@ def test_readme_ros2_commands_name_what_the_packages_install():
         else:
             setup = (ROOT / package / "setup.py").read_text()
             assert re.search(rf"\b{re.escape(name)} = ", setup), f"{package} installs no {name}"
+
+
+def cited_tests(text: str):
+    """``(file, test or None)`` of every test a page cites: ``tests/test_x.py::name``, and ``::name`` after it."""
+    current = None
+    for match in re.finditer(r"`(?:tests/(test_\w+\.py))?(?:::(\w+))?[\[`]", text):
+        path, name = match.groups()
+        if path:
+            current = path
+        if current and (path or name):
+            yield current, name
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda page: str(page.relative_to(ROOT)))
+def test_every_test_a_page_cites_exists(page):
+    """A page that says which test shows a behaviour names a test that is there (tests get renamed)."""
+    missing = []
+    for path, name in cited_tests(page.read_text()):
+        source = ROOT / "tests" / path
+        if not source.exists():
+            missing.append(path)
+        elif name and not re.search(rf"^(async )?def {name}\(", source.read_text(), re.M):
+            missing.append(f"{path}::{name}")
+    assert missing == []

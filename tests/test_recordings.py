@@ -30,7 +30,7 @@ from nni_battery_controller.smib_demo import recording_name
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.recording.mcap_io import read_messages
 from nni_msgs_adapter.recording.runs import SAMPLE_TOPICS, read_generator_run
-from nni_msgs_adapter.viewing.rerun_view import run_paths
+from nni_msgs_adapter.viewing.rerun_layout import run_paths
 from rosproc import fresh_domain_id
 
 pytestmark = pytest.mark.ros

@@ -18,14 +18,10 @@ import pytest
 from rerun.chunk import RrdReader
 
 from nni_msgs_adapter.viewing.palette import colour_hex, colour_rgb
-from nni_msgs_adapter.viewing.rerun_view import (
-    PHASE_PATH,
-    LiveLogger,
-    blueprint,
-    log_trajectory,
-    open_recording,
-    run_paths,
-)
+from nni_msgs_adapter.viewing.rerun_layout import PHASE_PATH, blueprint, run_paths
+from nni_msgs_adapter.viewing.rerun_live import LiveLogger
+from nni_msgs_adapter.viewing.rerun_stream import open_recording
+from nni_msgs_adapter.viewing.rerun_trajectory import log_trajectory
 
 RERUN_CLI = Path(sys.executable).parent / "rerun"
 TIMELINE = "sim_time"

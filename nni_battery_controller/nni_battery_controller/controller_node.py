@@ -34,9 +34,8 @@ class ControllerNode(LoopNode):
         ControllerCore.warm_up(config)
         self._pmu_subs = [contract.subscribe(self, contract.TOPIC_PMU, lambda data, i=i: self._on_pmu(i, data), ns,
                                              raw=True) for i, ns in enumerate(config.pmu_namespaces)]
-        self._clock_sub = contract.subscribe(self, contract.TOPIC_CLOCK,
-                                             lambda msg: setattr(self, "_clock_ns", contract.ns_from_time(msg.clock)))
-        contract.subscribe(self, contract.TOPIC_DIAGNOSTICS, self._on_diagnostics)
+        self._clock_sub = contract.subscribe(self, contract.TOPIC_CLOCK, self._on_clock, raw=True)
+        contract.subscribe(self, contract.TOPIC_DIAGNOSTICS, self._on_diagnostics, raw=True)
         # Restarted by each measurement: it fires only on silence (profiled: one at the sample rate doubled wake-ups).
         self._stale_timer = self.create_timer(config.stale_after_s, self._check_stale)
 
@@ -67,8 +66,14 @@ class ControllerNode(LoopNode):
         else:
             self._commands.publish(stamp_ns, power_pu, self._signer.seal(stamp_ns, power_pu))
 
-    def _on_diagnostics(self, msg) -> None:
-        if contract.plant_run_ended(msg, self.get_namespace()) and self._core.end_of_run():
+    def _on_clock(self, data: bytes) -> None:
+        try:
+            self._clock_ns = contract.clock_from_bytes(data)
+        except contract.ContractError:
+            pass  # no time in it: the stamps stay checked against the last one heard
+
+    def _on_diagnostics(self, data: bytes) -> None:
+        if contract.plant_run_ended(data, self.get_namespace()) and self._core.end_of_run():
             self.get_logger().info(f"the plant's run ended after {self._core.gate.counts['samples']} answered "
                                    "measurements: waiting for the next run")
 

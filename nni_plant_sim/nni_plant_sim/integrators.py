@@ -17,7 +17,9 @@ make the same call, so the distributed lockstep loop reproduces the offline run
 to rounding error. One RK4 for the SMIB (``plant`` a :class:`SmibParams`) and
 for a network of generators (``plant`` a :class:`nni_plant_sim.network.Network`,
 whose scenarios give ``(P_m vector, Coupling)`` where the SMIB's give
-``(P_M, P_max)``). Pure python and numpy: no ROS import.
+``(P_M, P_max)``); a network's is compiled (:mod:`.network_rk4`: the same
+sums, the swing equations summed in their own order). Pure python, numpy and,
+for a network, numba: no ROS import.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import math
 import numpy as np
 
 from nni_plant_sim.model import held_acceleration, plant_rate
+from nni_plant_sim.network import Network
 
 
 def rk4(rate, t: float, x: tuple, h: float, u, params) -> tuple:
@@ -72,10 +75,10 @@ def _components(x) -> tuple:
 def _rk4_swing(delta, speed, h, acceleration) -> tuple:
     """:func:`rk4` of :func:`~nni_plant_sim.model.plant_rate` written out: the same sums in the same order.
 
-    The plant's path, the node's (20 to 50 steps a sample, on floats) and the
-    network batches' (arrays): the generic step's lists and rate calls cost more
-    than the arithmetic on two floats (2.5x, timings in the notes on issue 12)
-    and some 5 % on a network batch. Stage k_i = (k_i delta, k_i speed) = (speed
+    The SMIB plant's path, the node's (20 to 50 steps a sample, on floats) and
+    the batches' (arrays; a network's steps are :mod:`.network_rk4`'s): the
+    generic step's lists and rate calls cost more than the arithmetic on two
+    floats (2.5x, timings in the notes on issue 12). Stage k_i = (k_i delta, k_i speed) = (speed
     at the stage, acceleration at the stage), as plant_rate gives them;
     ``acceleration(delta, speed)`` is :func:`~nni_plant_sim.model.held_acceleration`.
     """
@@ -120,6 +123,12 @@ def advance(
         steps = max(1, math.ceil((stop - start) / max_step_s - 1e-9))
         h = (stop - start) / steps
         p_mech, network = scenario.network(start, plant)
+        if isinstance(plant, Network):
+            # Imported here: numba (0.2 s) only for a network, never on the SMIB's paths.
+            from nni_plant_sim.network_rk4 import rk4_network
+
+            delta, speed = rk4_network(delta, speed, steps, h, plant, p_mech, network, power)
+            continue
         acceleration = held_acceleration(plant, p_mech, network, power, delta)
         for _ in range(steps):
             try:

@@ -96,6 +96,7 @@ def network_acceleration(delta_rad, speed_rad_s, battery_power_pu, net: "Network
                               net.damping_pu[column], net.inertia_m[column])
 
 
+
 @dataclass(frozen=True)
 class Network:
     """A multi-machine system reduced to its generators' internal nodes, at its pre-fault equilibrium.

@@ -1,9 +1,9 @@
-"""Replay node: publishes a planned recording (:class:`replay.Playback`) with its original timing.
+"""Replay node: publishes a planned recording (:class:`replay_ros.Playback`) with its original timing.
 
-The ROS half of ``nni-replay``; the command line, the reading and the planning
-are in :mod:`nni_msgs_adapter.recording.replay`, which imports this module only for ROS
-playback. Messages go out as recorded CDR bytes (``publish`` of ``bytes``), on
-their recorded topic names, with the planned QoS. One timer drives the
+The ROS half of ``nni-replay``; the command line is in :mod:`nni_msgs_adapter.recording.replay`,
+the reading in :mod:`replay_load` and the planning in :mod:`replay_ros`, which imports
+this module only for ROS playback. Messages go out as recorded CDR bytes (``publish`` of
+``bytes``), on their recorded topic names, with the planned QoS. One timer drives the
 playback: each callback publishes every message that is due and re-arms the
 timer for the next one, so nothing sleeps and signals are handled at once.
 Scheduling uses the monotonic clock, never ROS time (which ``--clock`` itself
@@ -42,7 +42,7 @@ _WAIT_REPORT_S = 1.0
 
 
 class ReplayNode(Node):
-    """Publishes a :class:`replay.Playback` at ``rate`` times its recorded pace.
+    """Publishes a :class:`replay_ros.Playback` at ``rate`` times its recorded pace.
 
     ``done`` completes after the last message (never with ``loop``); ``close()`` waits up
     to two seconds for reliable subscribers to acknowledge what was sent.

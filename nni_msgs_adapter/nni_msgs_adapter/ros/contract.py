@@ -259,6 +259,7 @@ def command_seal(msg: JointState) -> bytes | None:
 
 #: The layouts the loop's nodes publish, to read back without building a message (:meth:`cdr.StampedBytes.unpack`).
 _ROTOR_LAYOUT, _COMMAND_LAYOUT, _SEALED_LAYOUT = rotor_bytes(), command_bytes(), command_bytes(sealed=True)
+_CLOCK_LAYOUT = cdr.clock()
 
 
 def _deserialised(data: bytes, msg_class):
@@ -300,6 +301,18 @@ def command_from_bytes(data: bytes) -> tuple[int, float, bytes | None]:
     return *command_from_message(msg), command_seal(msg)
 
 
+def clock_from_bytes(data: bytes) -> int:
+    """The time (ns) of a ``/clock`` message received as bytes; ContractError if malformed.
+
+    As :func:`pmu_from_bytes`: the plant's layout in place, else rclpy. Every controller reads /clock at
+    every lockstep sample (measured: a reader's CPU per message 27 us as bytes, 40 us deserialised).
+    """
+    fast = _CLOCK_LAYOUT.unpack(data)
+    if fast is not None:
+        return fast[0]
+    return ns_from_time(_deserialised(data, Clock).clock)
+
+
 def warm_up() -> None:
     """Build and read a measurement and a command, as messages and as bytes, publishing nothing.
 
@@ -309,6 +322,7 @@ def warm_up() -> None:
     pmu_from_message(pmu_message(0, 0.0, 0.0, 0.0)), command_from_message(command_message(0, 0.0))
     pmu_from_bytes(_ROTOR_LAYOUT.pack(0, 0.0, 0.0, 0.0)), command_from_bytes(_COMMAND_LAYOUT.pack(0, 0.0))
     command_from_bytes(_SEALED_LAYOUT.pack(0, 0.0, b"0" * command_auth.SEAL_LENGTH))
+    clock_from_bytes(_CLOCK_LAYOUT.pack(0))
 
 
 def plant_state_message(stamp_ns: int, delta_rad: float, speed_rad_s: float, battery_power_pu: float) -> JointState:
@@ -408,15 +422,27 @@ def diagnostic_values(msg: DiagnosticArray, name: str) -> dict | None:
 RUN_ENDED = "run_ended"
 
 
-def plant_run_ended(msg: DiagnosticArray, namespace: str) -> bool:
-    """The plant of ``namespace`` (``/`` or ``/gen1``, as Node.get_namespace) says here that its run has ended.
+def plant_run_ended(data: bytes, namespace: str) -> bool:
+    """The plant of ``namespace`` (``/`` or ``/gen1``, as Node.get_namespace) says in these ``/diagnostics``
+    bytes that its run has ended (bytes that are no DiagnosticArray say nothing).
 
     Anyone can publish on ``/diagnostics``: a false notice only spares the controller its
     stand-down for the silence that follows it directly (the next measurement cancels it); the
     battery still goes to zero through the plant's own command timeouts.
+
+    Deserialised only when the bytes hold both the status name and ``True`` (CDR strings are
+    their UTF-8 bytes, so a message without either says nothing here): every controller hears
+    every status of the loop, and a composed process of 52 controllers spent 29 % of its time
+    converting them to Python messages (py-spy, kundur_ring_52 in lockstep).
     """
     namespace = namespace.strip("/")
-    values = diagnostic_values(msg, f"{namespace}/plant" if namespace else "plant")
+    name = f"{namespace}/plant" if namespace else "plant"
+    if name.encode() not in data or b"True" not in data:
+        return False
+    try:
+        values = diagnostic_values(_deserialised(data, DiagnosticArray), name)
+    except ContractError:
+        return False
     return values is not None and values.get(RUN_ENDED) == "True"
 
 

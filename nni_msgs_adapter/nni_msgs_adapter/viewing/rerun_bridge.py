@@ -3,7 +3,7 @@
 Subscribes to ``plant/state`` (speed deviation), ``controller/state`` (angle
 deviation, battery power, saturation, W_hat, b) and the latched
 ``plant/invariant_set``; pairs them by stamp (both carry the measurement's stamp)
-and logs each sample through :class:`nni_msgs_adapter.rerun_view.LiveLogger`.
+and logs each sample through :class:`nni_msgs_adapter.viewing.rerun_live.LiveLogger`.
 A separate process, off the control path: a slow viewer never delays a command.
 
 Runs. Once a plant's ``plant/state`` and a controller's ``controller/state``
@@ -27,7 +27,7 @@ plant names them): the same topics in every namespace; a generator's sample is
 drawn once every generator's ``plant/state`` of its stamp and its own
 ``controller/state`` are in, its angle relative to the centre of inertia
 (weights the machines' M from the case), labelled ``gen<i>`` (``gen<i> #2`` in a
-second run), in the network layout (:data:`rerun_view.NETWORK_VIEW`); f0 is the
+second run), in the network layout (:data:`rerun_layout.NETWORK_VIEW`); f0 is the
 case's. The gate subscribes to every generator's ``pmu``. The progress line then
 also holds ``"generators": {namespace: samples}``. Empty ``namespaces`` (the
 default): the SMIB topics of the bridge's own namespace, as above.
@@ -57,7 +57,10 @@ from nni_msgs_adapter.ros.defaults import plant_defaults
 from nni_msgs_adapter.ros.node_main import run_node
 from nni_msgs_adapter.ros.ros_params import Spec, declared_values
 from nni_msgs_adapter.viewing.palette import colour_rgb, generator_colour_rgb
-from nni_msgs_adapter.viewing.rerun_view import APP_ID, NETWORK_VIEW, LiveLogger, blueprint, open_recording
+from nni_msgs_adapter.viewing.rerun_layout import NETWORK_VIEW, blueprint
+from nni_msgs_adapter.viewing.rerun_live import LiveLogger
+from nni_msgs_adapter.viewing.rerun_stream import APP_ID, open_recording
+
 
 @functools.cache
 def parameters() -> tuple[Spec, ...]:
