@@ -23,7 +23,9 @@ Each table sets a measurement beside a baseline taken in the same run:
 5. network realtime at 50 frames/s, ieee39's 10 controllers as separate
    processes and composed in one, per generator beside the timed fan-out to
    echoes deployed alike;
-6. memory (and CPU) per controller process and per composed controller.
+6. memory (and CPU) per controller process and per composed controller;
+7. the cost per sample of authenticated battery commands: the controller's
+   HMAC-SHA256 seal and the plant's check, beside the bare publish.
 
 Node processes are started exactly as ``nni-demo`` starts them; discovery stays
 on localhost (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) in a ROS domain of the
@@ -39,6 +41,7 @@ import sys
 import time
 from pathlib import Path
 
+from bench.command_auth import bench_command_auth
 from bench.common import NETWORK_RATE_HZ, ROOT
 from bench.latency import bench_controller_share, bench_latency
 from bench.lockstep import bench_lockstep
@@ -47,13 +50,14 @@ from bench.network_lockstep import NETWORK_LOCKSTEP_CASES, NETWORK_LOCKSTEP_QUIC
 from bench.network_realtime import bench_network_realtime
 from bench.report import report
 from bench.roa import bench_roa
+from nni_msgs_adapter.ros.command_auth import KEY_FILE_ENV, run_key
 from nni_msgs_adapter.ros.processes import ChildError
 
 #: Alternating (baseline, loop) rounds of a full run (latency and lockstep per rate, network realtime); the
 #: duration is split among them.
 ROUNDS = 3
 #: What --only selects (all by default).
-BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime")
+BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime", "command-auth")
 
 
 def parse_args(argv=None):
@@ -72,7 +76,7 @@ def parse_args(argv=None):
     return args
 
 
-def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates) -> dict:
+def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates, domain_id: int) -> dict:
     """Each benchmark ``only`` names, with the durations of a full run (or ``quick``'s); results by report section."""
     duration_s = 6.0 if quick else 30.0
     results = {}
@@ -92,6 +96,8 @@ def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates) -> dict:
         results["network-realtime"] = bench_network_realtime(
             env, log_root, "kundur_two_area" if quick else "ieee39", NETWORK_RATE_HZ, 5.0 if quick else 30.0,
             1 if quick else ROUNDS)
+    if "command-auth" in only:
+        results["command-auth"] = bench_command_auth(domain_id)
     return results
 
 
@@ -100,11 +106,13 @@ def main(argv=None) -> int:
     command = "bench/run_all" + (" " + " ".join(sys.argv[1:] if argv is None else argv)).rstrip()
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(args.domain_id),
                       PYTHONUNBUFFERED="1")
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
     log_root = ROOT / "out" / "bench"
     started_text, started = time.strftime("%Y-%m-%d %H:%M %Z"), time.monotonic()
     machine = machine_description(args.domain_id)
-    results = run_benchmarks(env, log_root, args.only, args.quick, args.rates)
+    with run_key() as key:  # the plants and controllers authenticate their commands as nni-demo's do
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
+                   **{KEY_FILE_ENV: str(key)})
+        results = run_benchmarks(env, log_root, args.only, args.quick, args.rates, args.domain_id)
     machine["load_average_at_end"] = os.getloadavg()
     text = report(command, machine, args.quick, results, started_text, time.monotonic() - started)
     tmp = args.out.with_name(args.out.name + ".part")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from bench.command_auth import command_auth_section
 from bench.latency import latency_section, share_section
 from bench.lockstep import lockstep_section
 from bench.machine import machine_section
@@ -12,7 +13,7 @@ from bench.roa import roa_section
 #: The page's sections in order: the key of a run's results each reports, and the function that writes it.
 SECTIONS = (("latency", latency_section), ("controller-share", share_section), ("lockstep", lockstep_section),
             ("roa", roa_section), ("network-lockstep", network_lockstep_section),
-            ("network-realtime", network_realtime_section))
+            ("network-realtime", network_realtime_section), ("command-auth", command_auth_section))
 
 
 def report(command: str, machine: dict, quick: bool, results: dict, started: str, wall_s: float) -> str:

@@ -12,7 +12,7 @@ MACHINE = {"cpu": "test CPU", "cores": 2, "kernel": "6.1", "python": "3.11", "pa
            "load_average_at_start": (0.2, 0.1, 0.1), "load_average_at_end": (0.5, 0.2, 0.1)}
 HEADINGS = ["## 1. Closed-loop latency", "### 1b. The controller's share", "## 2. Lockstep throughput",
             "## 3. Region-of-attraction sweep", "## 4. Network lockstep throughput", "## 5. Network realtime",
-            "## 6. Memory per controller"]
+            "## 6. Memory per controller", "## 7. Authenticated battery commands"]
 
 
 def latency_row(rate_hz: float, p50_ratio: float, misses: int = 0) -> dict:
@@ -62,7 +62,12 @@ def results(latency_ratio: float = 1.2, network_ratio: float = 1.8) -> dict:
                              network_row("kundur_two_area", 4, "separate", 1.5),
                              network_row("ieee39", 10, "separate", network_ratio)],
         "network-realtime": realtime_result(),
+        "command-auth": COMMAND_AUTH,
     }
+
+
+COMMAND_AUTH = {"bare_publish_us": 12.5, "sign_us": 3.25, "sealed_publish_us": 16.0, "verify_us": 4.5,
+                "batch": 2000, "batches": 15}
 
 
 def page(results: dict, machine: dict = MACHINE, quick: bool = False) -> str:
@@ -107,3 +112,11 @@ def test_a_loaded_machine_and_a_quick_run_are_flagged():
     loaded = {**MACHINE, "load_average_at_start": (1.5, 1.0, 1.0)}
     assert "Measured on a loaded machine" in page(results(), loaded)
     assert "> **`--quick` run**" in page(results(), quick=True)
+
+
+def test_the_command_authentication_row_sets_sign_and_verify_beside_the_bare_publish():
+    text = page({"command-auth": COMMAND_AUTH})
+    assert "median of 15 batches of 2000 commands" in text
+    assert ("| bare publish (µs) | sign (µs) | sealed publish (µs) | added by the seal (µs) | verify (µs) |"
+            in text)
+    assert "| 12.50 | 3.25 | 16.00 | +3.50 | 4.50 |" in text
