@@ -514,29 +514,54 @@ def test_a_killed_network_demo_takes_every_process_with_it(tmp_path, deployment,
     assert_nothing_left(children, marker)
 
 
-def test_a_second_writer_on_one_generators_battery_makes_the_run_compromised(tmp_path):
-    """A rogue writer on /gen2/battery/command from the start (realtime, 1 s): exit 3, that generator named."""
+@pytest.mark.parametrize("deployment", ["separate", "composed"])
+def test_a_second_writer_on_one_generators_battery_makes_the_run_compromised(tmp_path, deployment):
+    """A rogue writer on /gen2/battery/command from before the run, flooding 5 pu commands stamped in the future
+    (realtime, 3 s): exit 3, that generator named; its battery kept serving its controller (authenticated
+    commands applied, never above b) and every generator stayed in synchronism.
+
+    The cause of the old flake ("the rogue's writer never matched the plant's battery/command subscription"
+    after 120 s): the rogue only had to be discovered by the plant within a 1 s run whose plant started at once
+    with the controllers; under load the plant's run was over (and the plant gone) before its participant had
+    matched the rogue's writer. The plant now holds its run until the demo has read back every node's
+    parameters, and the rogue floods from before the demo starts, so the plant discovers it while it waits;
+    and 3 s of run leave the last of discovery inside the run.
+    """
+    import threading
+
     from nni_msgs_adapter.ros import contract
     from rosproc import Probe
 
     domain = fresh_domain_id()
     rogue = Probe(domain, (), namespace="gen2", node_name="rogue")
     rogue.advertise(contract.TOPIC_BATTERY_COMMAND)
+    stop = threading.Event()
+
+    def flood():
+        while not stop.wait(0.01):
+            rogue.publish(contract.TOPIC_BATTERY_COMMAND, contract.command_message(time.time_ns() + 10**10, 5.0))
+
+    flooding = threading.Thread(target=flood, daemon=True)
+    flooding.start()
     demo = subprocess.Popen([str(DEMO), "--case", "kundur_two_area", "--mode", "realtime", "--b", "0.1",
-                             "--duration", "1", "--out", str(tmp_path), "--domain-id", str(domain)],
+                             "--duration", "3", "--deployment", deployment, "--out", str(tmp_path),
+                             "--domain-id", str(domain)],
                             env=ros_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         stdout, stderr = demo.communicate(timeout=300)
     finally:
         demo.kill()
+        stop.set()
+        flooding.join()
         rogue.close()
-    # The demo's own verdict is the evidence that the rogue was in the loop (it names /gen2's writer alarms);
-    # a wait for the rogue's matches before it failed twice in whole-suite runs and said nothing of the demo.
     assert demo.returncode == 3, stdout + stderr
     (line,) = [line for line in stdout.splitlines() if "COMPROMISED" in line]
     assert line.strip().startswith("b = 0.1: COMPROMISED (not a valid result): /gen2: ") and "/gen1" not in line
-    assert "writer alarms" in line
+    assert "unauthenticated" in line
     assert len(stderr.strip().splitlines()) == 1 and "1 of 1 run(s) compromised" in stderr
     (run,) = json.loads((tmp_path / "summary.json").read_text())["runs"]
-    assert list(run["compromised"]) == ["gen2"] and run["compromised"]["gen2"]["writer_alarms"] > 0
-    assert run["generators"]["gen2"]["max_abs_applied_power_pu"] <= 0.1
+    assert list(run["compromised"]) == ["gen2"] and run["compromised"]["gen2"]["unauthenticated_commands"] > 0
+    gen2 = run["generators"]["gen2"]
+    assert 0.0 < gen2["max_abs_applied_power_pu"] <= 0.1, "its controller's commands applied, never above b"
+    assert gen2["trust"]["foreign_commands"] == 0 and gen2["samples"] >= 140
+    assert run["in_synchronism"] and all(g["in_synchronism"] for g in run["generators"].values())

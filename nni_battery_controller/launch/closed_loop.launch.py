@@ -113,7 +113,7 @@ def generate_launch_description():
                    (plant, {f"{prefix}/plant": expected_parameters(plant_node_parameters(), given["plant"])})]
         # The plant runs once both nodes stated what they were given; the run is over when it exits
         # (duration_s > 0): stop the others, finish the recording.
-        return [*remove_key, *readback_release(started, plant), logger, controller, plant,
+        return [*remove_key, *readback_release(started, plant, key_env), logger, controller, plant,
                 RegisterEventHandler(OnProcessExit(target_action=plant, on_exit=[
                     EmitEvent(event=Shutdown(reason="the plant finished its run"))]))]
 

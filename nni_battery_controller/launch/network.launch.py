@@ -208,7 +208,7 @@ def generate_launch_description():
         started = [(node, passed) for node, passed in zip(nodes, readbacks(specs)) if passed]
         # The plant (the last node) runs once every node stated what it was given; the run is over when it
         # exits: stop the others, finish the recording.
-        return [*remove_key, *readback_release(started, nodes[-1]), *nodes,
+        return [*remove_key, *readback_release(started, nodes[-1], key_env), *nodes,
                 RegisterEventHandler(OnProcessExit(target_action=nodes[-1], on_exit=[
                     EmitEvent(event=Shutdown(reason="the network plant finished its run"))]))]
 

@@ -28,7 +28,7 @@ import numpy as np
 from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX
 from nni_msgs_adapter.recording.runs import GeneratorRun
 from nni_msgs_adapter.ros.cli_support import CliError, write_json
-from nni_msgs_adapter.ros.command_auth import KEY_FILE_ENV
+from nni_msgs_adapter.ros.command_auth import KEY_FILE_ENV, remove_key_file
 from nni_msgs_adapter.ros.processes import ChildError
 from nni_msgs_adapter.ros.readback import mismatch, stated_parameters
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
@@ -91,10 +91,13 @@ def key_environment(key_file) -> dict:
     return {KEY_FILE_ENV: str(key_file)}
 
 
-def start_when_read_back(started: list, plant, logs: Path) -> None:
+def start_when_read_back(started: list, plant, logs: Path, key_file=None) -> None:
     """Release the ``plant`` (SIGUSR1: it holds its run) once every child of ``started`` (``(child, {node:
     expected parameters})``) has stated them; CliError (one line: nothing runs) if one states others, exits or
-    says nothing within READBACK_WAIT_S."""
+    says nothing within READBACK_WAIT_S.
+
+    ``key_file``: the run's key, removed before the release: every node that states its parameters has read it
+    at start, so that not even a demo killed mid-run (SIGKILL) leaves it behind."""
     deadline = time.monotonic() + READBACK_WAIT_S
     for child, passed in started:
         while True:
@@ -111,6 +114,8 @@ def start_when_read_back(started: list, plant, logs: Path) -> None:
                 raise CliError(f"the {child.name} did not state its parameters within {READBACK_WAIT_S:g} s "
                                f"(logs in {logs})")
             time.sleep(0.05)
+    if key_file is not None:
+        remove_key_file(key_file)
     plant.proc.send_signal(signal.SIGUSR1)
 
 

@@ -297,7 +297,7 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
         plant = procs.start_node("network_plant", PLANT, plant_params, env=key_environment(key))
         start_when_read_back([*controller_readbacks(started_controllers, controllers, args.deployment),
                               (plant, {"/network_plant": expected_parameters(plant_node_parameters(), plant_params)})],
-                             plant, logs)
+                             plant, logs, key)
         finish_plant(procs, plant, args, run_label(args, b), SUMMARY_PREFIX)
         for controller in started_controllers:
             controller.stop()

@@ -187,7 +187,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
         plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params, env=key_environment(key))
         start_when_read_back(
             [(controller, {"/controller": expected_parameters(controller_node_parameters(), controller_params)}),
-             (plant, {"/plant": expected_parameters(plant_node_parameters(), plant_params)})], plant, logs)
+             (plant, {"/plant": expected_parameters(plant_node_parameters(), plant_params)})], plant, logs, key)
         finish_plant(procs, plant, args, f"b = {b:<5g}")
         controller.stop()
         if logger.stop() != 0:

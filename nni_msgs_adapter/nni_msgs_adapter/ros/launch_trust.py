@@ -8,8 +8,8 @@
   case; the process's exit too, should the launch itself fail).
 * :func:`readback_release`: output handlers on every started node's process
   that feed a :class:`.readback.ReadbackGate`; once every node has stated the
-  parameters it was given the plant (``hold_until_released``) gets SIGUSR1
-  and its run starts, and on a difference the launch logs one line and shuts
+  parameters it was given (each has read the key: it is removed then) the
+  plant (``hold_until_released``) gets SIGUSR1 and its run starts, and on a difference the launch logs one line and shuts
   down before any sample.
 
 ``launch`` is imported inside the functions only, so that the module imports
@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import atexit
 import signal
+from pathlib import Path
 
 from nni_msgs_adapter.ros import command_auth
 from nni_msgs_adapter.ros.readback import ReadbackGate
@@ -37,9 +38,10 @@ def run_key_environment() -> tuple[dict, list]:
     return {command_auth.KEY_FILE_ENV: str(path)}, [RegisterEventHandler(OnShutdown(on_shutdown=[remove]))]
 
 
-def readback_release(started: list, plant) -> list:
+def readback_release(started: list, plant, key_environment: dict) -> list:
     """Handlers releasing ``plant`` (a launch_ros Node) once every node of ``started`` (``(action, {node: the
-    parameters it must state})``) has stated them; a shutdown (one line) on the first difference."""
+    parameters it must state})``) has stated them, the run's key (``key_environment``'s) removed first (each of
+    them read it at start); a shutdown (one line) on the first difference."""
     from launch.actions import EmitEvent, LogInfo, RegisterEventHandler
     from launch.event_handlers import OnProcessIO
     from launch.events import Shutdown, matches_action
@@ -50,6 +52,7 @@ def readback_release(started: list, plant) -> list:
     def on_stdout(event):
         decision = gate.feed(event.name, event.text.decode(errors="replace"))
         if decision == ReadbackGate.RELEASE:
+            command_auth.remove_key_file(Path(key_environment[command_auth.KEY_FILE_ENV]))
             return [EmitEvent(event=SignalProcess(signal_number=signal.SIGUSR1,
                                                   process_matcher=matches_action(plant)))]
         if decision is not None:
