@@ -557,10 +557,13 @@ def test_a_second_writer_on_one_generators_battery_makes_the_run_compromised(tmp
     assert demo.returncode == 3, stdout + stderr
     (line,) = [line for line in stdout.splitlines() if "COMPROMISED" in line]
     assert line.strip().startswith("b = 0.1: COMPROMISED (not a valid result): /gen2: ") and "/gen1" not in line
-    assert "unauthenticated" in line
+    assert "writer alarms" in line
     assert len(stderr.strip().splitlines()) == 1 and "1 of 1 run(s) compromised" in stderr
     (run,) = json.loads((tmp_path / "summary.json").read_text())["runs"]
-    assert list(run["compromised"]) == ["gen2"] and run["compromised"]["gen2"]["unauthenticated_commands"] > 0
+    # The plant names the second writer (its graph); its commands reach the plant only once the rogue's own side
+    # has matched the plant's reader, not always within the run (seen once in 20 under load): not asserted here,
+    # test_command_trust's attack 1 floods a plant that is sure to hear it.
+    assert list(run["compromised"]) == ["gen2"] and run["compromised"]["gen2"]["writer_alarms"] > 0
     gen2 = run["generators"]["gen2"]
     assert 0.0 < gen2["max_abs_applied_power_pu"] <= 0.1, "its controller's commands applied, never above b"
     assert gen2["trust"]["foreign_commands"] == 0 and gen2["samples"] >= 140
