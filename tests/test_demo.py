@@ -265,9 +265,11 @@ def test_rogue_commands_make_the_run_compromised(tmp_path):
 
 def test_compromised_reasons():
     run = SimpleNamespace(battery_power_pu=np.array([0.0, 0.3, -0.3]))
-    clean = {"foreign_commands": 0, "unsolicited_commands": 0, "writer_alarms": 0, "max_abs_applied_power_pu": 0.3}
+    clean = {"unauthenticated_commands": 0, "replayed_commands": 0, "foreign_commands": 0, "unsolicited_commands": 0,
+             "writer_alarms": 0, "max_abs_applied_power_pu": 0.3}
     assert compromised_reasons(clean, run, 0.3) == {}
     assert compromised_reasons({**clean, "foreign_commands": 2}, run, 0.3) == {"foreign_commands": 2}
+    assert compromised_reasons({**clean, "unauthenticated_commands": 7}, run, 0.3) == {"unauthenticated_commands": 7}
     assert compromised_reasons(clean, run, 0.2) == {"max_abs_applied_power_pu": 0.3}
     assert compromised_reasons({**clean, "max_abs_applied_power_pu": 5.0}, run, 0.3) == {"max_abs_applied_power_pu": 5.0}
     # A plant that does not report its trust counters cannot be judged: never taken as clean.
