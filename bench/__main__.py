@@ -26,6 +26,8 @@ Each table sets a measurement beside a baseline taken in the same run:
 6. memory (and CPU) per controller process and per composed controller;
 7. where a network lockstep sample's CPU time goes, per part of the plant's
    step and of the composed controllers' process (py-spy from outside).
+9. the cost per sample of authenticated battery commands: the controller's
+   HMAC-SHA256 seal and the plant's check, beside the bare publish.
 
 Node processes are started exactly as ``nni-demo`` starts them; discovery stays
 on localhost (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) in a ROS domain of the
@@ -41,6 +43,7 @@ import sys
 import time
 from pathlib import Path
 
+from bench.command_auth import bench_command_auth
 from bench.common import NETWORK_RATE_HZ, ROOT
 from bench.c37118_loop import bench_c37118_loop
 from bench.latency import bench_controller_share, bench_latency
@@ -51,13 +54,15 @@ from bench.network_profile import PROFILE_QUICK_RUN, PROFILE_RUN, bench_network_
 from bench.network_realtime import bench_network_realtime
 from bench.report import report
 from bench.roa import bench_roa
+from nni_msgs_adapter.ros.command_auth import KEY_FILE_ENV, run_key
 from nni_msgs_adapter.ros.processes import ChildError
 
 #: Alternating (baseline, loop) rounds of a full run (latency and lockstep per rate, network realtime); the
 #: duration is split among them.
 ROUNDS = 3
 #: What --only selects (all by default).
-BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime", "network-profile", "c37118-loop")
+BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime", "network-profile", "c37118-loop",
+              "command-auth")
 
 
 def parse_args(argv=None):
@@ -76,7 +81,7 @@ def parse_args(argv=None):
     return args
 
 
-def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates) -> dict:
+def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates, domain_id: int) -> dict:
     """Each benchmark ``only`` names, with the durations of a full run (or ``quick``'s); results by report section."""
     duration_s = 6.0 if quick else 30.0
     results = {}
@@ -100,6 +105,8 @@ def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates) -> dict:
         results["network-profile"] = bench_network_profile(env, log_root, PROFILE_QUICK_RUN if quick else PROFILE_RUN)
     if "c37118-loop" in only:
         results["c37118-loop"] = bench_c37118_loop(env, log_root, 50.0, duration_s, ROUNDS)
+    if "command-auth" in only:
+        results["command-auth"] = bench_command_auth(domain_id)
     return results
 
 
@@ -108,11 +115,13 @@ def main(argv=None) -> int:
     command = "bench/run_all" + (" " + " ".join(sys.argv[1:] if argv is None else argv)).rstrip()
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(args.domain_id),
                       PYTHONUNBUFFERED="1")
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
     log_root = ROOT / "out" / "bench"
     started_text, started = time.strftime("%Y-%m-%d %H:%M %Z"), time.monotonic()
     machine = machine_description(args.domain_id)
-    results = run_benchmarks(env, log_root, args.only, args.quick, args.rates)
+    with run_key() as key:  # the plants and controllers authenticate their commands as nni-demo's do
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
+                   **{KEY_FILE_ENV: str(key)})
+        results = run_benchmarks(env, log_root, args.only, args.quick, args.rates, args.domain_id)
     machine["load_average_at_end"] = os.getloadavg()
     text = report(command, machine, args.quick, results, started_text, time.monotonic() - started)
     tmp = args.out.with_name(args.out.name + ".part")

@@ -8,6 +8,7 @@ Nothing here mocks ROS.
 
 from __future__ import annotations
 
+import atexit
 import itertools
 import os
 import subprocess
@@ -17,6 +18,7 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
+from nni_msgs_adapter.ros import command_auth
 from nni_msgs_adapter.ros.processes import Child, node_command
 
 _domain_counter = itertools.count()
@@ -50,11 +52,23 @@ def fresh_domain_id() -> int:
     return domains[(os.getpid() * 7 + next(_domain_counter)) % len(domains)]
 
 
+#: The test session's command key (:mod:`nni_msgs_adapter.ros.command_auth`): every node started by a test
+#: has it, as nni-demo gives its plant and controllers a run's key; removed when the session ends.
+SESSION_KEY_FILE = command_auth.new_key_file()
+atexit.register(command_auth.remove_key_file, SESSION_KEY_FILE)
+
+
+def session_signer(topic: str) -> command_auth.CommandSigner:
+    """A signer under the session's key for the command topic ``topic`` (absolute): a probe playing the controller."""
+    return command_auth.CommandSigner(command_auth.read_key(SESSION_KEY_FILE), topic)
+
+
 def ros_env(domain_id: int, **extra) -> dict:
-    """Environment for a node process: localhost discovery, the given domain."""
+    """Environment for a node process: localhost discovery, the given domain, the session's command key."""
     env = dict(os.environ)
     env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain_id),
-               PYTHONUNBUFFERED="1", RCUTILS_COLORIZED_OUTPUT="0")
+               PYTHONUNBUFFERED="1", RCUTILS_COLORIZED_OUTPUT="0",
+               **{command_auth.KEY_FILE_ENV: str(SESSION_KEY_FILE)})
     env.update({k: str(v) for k, v in extra.items()})
     return env
 

@@ -12,7 +12,8 @@ MACHINE = {"cpu": "test CPU", "cores": 2, "kernel": "6.1", "python": "3.11", "pa
            "load_average_at_start": (0.2, 0.1, 0.1), "load_average_at_end": (0.5, 0.2, 0.1)}
 HEADINGS = ["## 1. Closed-loop latency", "### 1b. The controller's share", "## 2. Lockstep throughput",
             "## 3. Region-of-attraction sweep", "## 4. Network lockstep throughput", "## 5. Network realtime",
-            "## 6. Memory per controller", "## 8. Latency the C37.118 path adds to the loop"]
+            "## 6. Memory per controller", "## 8. Latency the C37.118 path adds to the loop",
+            "## 9. Authenticated battery commands"]
 
 
 def latency_row(rate_hz: float, p50_ratio: float, misses: int = 0) -> dict:
@@ -70,7 +71,12 @@ def results(latency_ratio: float = 1.2, network_ratio: float = 1.8) -> dict:
                              network_row("ieee39", 10, "separate", network_ratio)],
         "network-realtime": realtime_result(),
         "c37118-loop": c37118_loop_result(0.6),
+        "command-auth": COMMAND_AUTH,
     }
+
+
+COMMAND_AUTH = {"bare_publish_us": 12.5, "sign_us": 3.25, "sealed_publish_us": 16.0, "verify_us": 4.5,
+                "batch": 2000, "batches": 15}
 
 
 def page(results: dict, machine: dict = MACHINE, quick: bool = False) -> str:
@@ -201,3 +207,11 @@ def test_the_c37118_path_is_judged_on_the_p50_it_adds_at_50_per_s(added_ms, verd
     rounds = ", ".join([f"{added_ms:.2f}"] * 3)
     assert f"Added p50: **{added_ms:.3f} ms** ({rounds}) <= 1 ms: {verdict}" in text
     assert f"| C37.118 (`c37118/pmu`) | {0.3 + added_ms:.3f} / 0.800 / 1.50 | 1 | 1500 |" in text
+
+
+def test_the_command_authentication_row_sets_sign_and_verify_beside_the_bare_publish():
+    text = page({"command-auth": COMMAND_AUTH})
+    assert "median of 15 batches of 2000 commands" in text
+    assert ("| bare publish (µs) | sign (µs) | sealed publish (µs) | added by the seal (µs) | verify (µs) |"
+            in text)
+    assert "| 12.50 | 3.25 | 16.00 | +3.50 | 4.50 |" in text

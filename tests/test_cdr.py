@@ -111,6 +111,17 @@ def test_the_contracts_bytes_are_its_messages(wire, build, topic, values):
         assert ours == normal
 
 
+def test_a_sealed_commands_bytes_are_its_message_on_the_wire(wire):
+    """The sealed command's layout (the seal a fixed-length text slot at the frame_id's end) is command_message's."""
+    for stamp_ns in STAMPS_NS[:3]:
+        seal = b"%016x|" % stamp_ns + b"0123456789abcdef" * 4
+        msg = contract.command_message(stamp_ns, 0.25, seal)
+        normal, ours = wire(type(msg), msg, contract.command_bytes(sealed=True).pack(stamp_ns, 0.25, seal))
+        assert ours == normal
+    with pytest.raises(ValueError, match="text slot takes 81 bytes, got 3"):
+        contract.command_bytes(sealed=True).pack(0, 0.25, b"abc")
+
+
 def test_a_wrong_number_of_values_is_refused():
     with pytest.raises(TypeError, match="3 values expected, got 2"):
         cdr.joint_state("generator", ("rotor",), (1, 1, 1)).pack(0, 1.0, 2.0)
@@ -122,11 +133,16 @@ def test_the_peers_bytes_read_back_in_place_and_any_other_message_through_rclpy(
 
     pmu = contract.rotor_bytes().pack(7_000_000_001, 0.2, -1.5, 0.75)
     assert contract.pmu_from_bytes(pmu) == ((7_000_000_001, 0.2, -1.5), (0.75,))
-    assert contract.command_from_bytes(contract.command_bytes().pack(7_000_000_001, -0.3)) == (7_000_000_001, -0.3)
+    assert contract.command_from_bytes(contract.command_bytes().pack(7_000_000_001, -0.3)) == (7_000_000_001, -0.3,
+                                                                                                None)
+    seal = b"%016x|" % 7 + b"ab" * 32
+    sealed = contract.command_bytes(sealed=True).pack(7_000_000_001, -0.3, seal)
+    assert contract.command_from_bytes(sealed) == (7_000_000_001, -0.3, seal)
     # Not the peer's layout but valid: another frame_id, rclpy's own (over-long) serialisation, more efforts.
     other = cdr.joint_state("elsewhere", (contract.BATTERY_JOINT,), (0, 0, 1)).pack(5, 0.25)
-    assert contract.command_from_bytes(other) == (5, 0.25)
-    assert contract.command_from_bytes(serialize_message(contract.command_message(9, 0.5))) == (9, 0.5)
+    assert contract.command_from_bytes(other) == (5, 0.25, None)
+    assert contract.command_from_bytes(serialize_message(contract.command_message(9, 0.5))) == (9, 0.5, None)
+    assert contract.command_from_bytes(serialize_message(contract.command_message(9, 0.5, seal))) == (9, 0.5, seal)
     two = cdr.joint_state("generator", (contract.ROTOR_JOINT,), (1, 1, 2)).pack(3, 0.1, 0.2, 0.3, 0.4)
     assert contract.pmu_from_bytes(two) == ((3, 0.1, 0.2), (0.3, 0.4))
     assert contract.clock_from_bytes(cdr.clock().pack(7_000_000_001)) == 7_000_000_001

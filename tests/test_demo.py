@@ -172,8 +172,8 @@ def test_live_rerun_realtime_starts_at_zero_under_load(tmp_path):
 def test_demo_waits_for_the_bridge_before_the_plant_starts():
     """With a bridge the plant waits for three pmu subscribers: controller, logger and the bridge."""
     args = parse_arguments(build_parser(), [])
-    assert plant_parameters(args, with_bridge=True)["wait_for_subscribers"] == 3
-    assert plant_parameters(args, with_bridge=False)["wait_for_subscribers"] == 2
+    assert plant_parameters(args, 0.3, with_bridge=True)["wait_for_subscribers"] == 3
+    assert plant_parameters(args, 0.3, with_bridge=False)["wait_for_subscribers"] == 2
 
 
 def test_through_c37118_the_plant_waits_for_the_logger_on_pmu_and_for_the_client_on_its_stream():
@@ -275,9 +275,11 @@ def test_rogue_commands_make_the_run_compromised(tmp_path):
 
 def test_compromised_reasons():
     run = SimpleNamespace(battery_power_pu=np.array([0.0, 0.3, -0.3]))
-    clean = {"foreign_commands": 0, "unsolicited_commands": 0, "writer_alarms": 0, "max_abs_applied_power_pu": 0.3}
+    clean = {"unauthenticated_commands": 0, "replayed_commands": 0, "foreign_commands": 0, "unsolicited_commands": 0,
+             "writer_alarms": 0, "max_abs_applied_power_pu": 0.3}
     assert compromised_reasons(clean, run, 0.3) == {}
     assert compromised_reasons({**clean, "foreign_commands": 2}, run, 0.3) == {"foreign_commands": 2}
+    assert compromised_reasons({**clean, "unauthenticated_commands": 7}, run, 0.3) == {"unauthenticated_commands": 7}
     assert compromised_reasons(clean, run, 0.2) == {"max_abs_applied_power_pu": 0.3}
     assert compromised_reasons({**clean, "max_abs_applied_power_pu": 5.0}, run, 0.3) == {"max_abs_applied_power_pu": 5.0}
     # A plant that does not report its trust counters cannot be judged: never taken as clean.
@@ -290,7 +292,7 @@ def test_compromised_reasons():
 
 def test_recording_names_follow_the_scenario():
     args = parse_arguments(build_parser(), [])
-    paper = plant_parameters(args, with_bridge=False)
+    paper = plant_parameters(args, 0.3, with_bridge=False)
     assert recording_name(0.3, paper) == "paper_b0.3.mcap"
     assert recording_name(math.inf, {**paper, "mode": "realtime", "duration_s": 3.0}) == "paper_binf.mcap"
     fault = {**paper, "scenario": "transfer_limit_fault", "clearing_time_s": 0.2}
@@ -300,8 +302,9 @@ def test_recording_names_follow_the_scenario():
 
 def test_run_metadata_holds_every_node_parameter():
     args = parse_arguments(build_parser(), ["--b", "0.3"])
-    plant = plant_parameters(args, with_bridge=False)
+    plant = plant_parameters(args, 0.3, with_bridge=False)
     meta = run_metadata(args, plant, controller_parameters(args, 0.3))
+    assert plant["battery_rating_pu"] == 0.3 and plant["hold_until_released"] is True, "the battery is rated b"
     assert set(meta) == {"scenario", "plant", "controller", "mode", "rate_hz", "measurements", "software_version"}
     assert meta["measurements"] == "ros"
     assert meta["scenario"] == {"name": "initial_angle", "delta0_rad": 0.2, "speed0_rad_s": 0.0}

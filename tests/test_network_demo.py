@@ -22,6 +22,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from nni_battery_controller.demo_common import start_when_read_back
 from nni_battery_controller.network_common import format_run
 from nni_battery_controller.network_deployment import controller_parameters, default_law, generator_limits
 from nni_battery_controller.network_sim import NetworkLaw, assess_network, simulate_network
@@ -281,8 +282,8 @@ def test_coi_reference_and_a_displacement_run_as_offline_and_stream_every_genera
 def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
     """The issue's Done-when: ten controller processes, per-generator results, no process left (1 s lockstep).
 
-    No battery but at G10, unlimited there: from 0.32 s on, its controller asks for more than the
-    plant's 1 pu rating, which clips it; the demo says so for /gen10 alone.
+    No battery but at G10, unlimited there: from 0.32 s on, its controller asks for more than 1 pu, and the
+    plant, whose battery there is rated b (unlimited, as the user said), applies it: nothing is clipped.
     """
     domain = fresh_domain_id()
     result, children, marker = run_demo(["--case", "ieee39", "--b", "0", "--gen-b", "10=inf", "--duration", "1",
@@ -300,9 +301,10 @@ def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
     assert list(run["generators"]) == [f"gen{i}" for i in range(1, 11)]
     assert all(g["samples"] == 50 and g["dropped_samples"] == 0 for g in run["generators"].values())
     clipped = [line.split(":")[0].strip() for line in result.stdout.splitlines() if "were clipped to it" in line]
-    assert clipped == ["/gen10"], result.stdout
-    assert run["generators"]["gen10"]["trust"]["clipped_commands"] > 0
-    assert run["generators"]["gen10"]["max_abs_battery_power_pu"] == 1.0
+    assert clipped == [], result.stdout
+    assert all(g["trust"]["clipped_commands"] == 0 for g in run["generators"].values())
+    assert run["generators"]["gen10"]["max_abs_battery_power_pu"] > 1.0
+    assert all(run["generators"][f"gen{i}"]["max_abs_battery_power_pu"] == 0.0 for i in range(1, 10)), "b = 0"
     assert sorted(p.name for p in (tmp_path / "logs").glob("*/controller_gen*.log")) == sorted(
         f"controller_gen{i}.log" for i in range(1, 11))
 
@@ -492,6 +494,9 @@ def test_the_launch_files_nodes_run_the_network_and_record_every_generator(netwo
                          ("-r", f"__ns:=/{n['namespace']}") if n["namespace"] else (), n["env"])
                    for n in nodes]
         plant, logger = started[-1], started[0]
+        # As the launch's output handlers do: the plant's run starts once every node stated what it was given.
+        start_when_read_back([(child, passed) for child, passed in zip(started, network_launch.readbacks(nodes))
+                              if passed], plant, tmp_path)
         assert plant.wait(timeout=180.0) == 0, plant.output()
         time.sleep(0.5)  # the last reliable messages land
         assert logger.interrupt(15.0) == 0, logger.output()
@@ -527,32 +532,60 @@ def test_a_killed_network_demo_takes_every_process_with_it(tmp_path, deployment,
     assert_nothing_left(children, marker)
 
 
-def test_a_second_writer_on_one_generators_battery_makes_the_run_compromised(tmp_path):
-    """A rogue writer on /gen2/battery/command from the start (realtime, 1 s): exit 3, that generator named."""
+@pytest.mark.parametrize("deployment", ["separate", "composed"])
+def test_a_second_writer_on_one_generators_battery_makes_the_run_compromised(tmp_path, deployment):
+    """A rogue writer on /gen2/battery/command from before the run, flooding 5 pu commands stamped in the future
+    (realtime, 3 s): exit 3, that generator named; its battery kept serving its controller (authenticated
+    commands applied, never above b) and every generator stayed in synchronism.
+
+    The cause of the old flake ("the rogue's writer never matched the plant's battery/command subscription"
+    after 120 s): the rogue only had to be discovered by the plant within a 1 s run whose plant started at once
+    with the controllers; under load the plant's run was over (and the plant gone) before its participant had
+    matched the rogue's writer. The plant now holds its run until the demo has read back every node's
+    parameters, and the rogue floods from before the demo starts, so the plant discovers it while it waits;
+    and 3 s of run leave the last of discovery inside the run.
+    """
+    import threading
+
     from nni_msgs_adapter.ros import contract
     from rosproc import Probe
 
     domain = fresh_domain_id()
     rogue = Probe(domain, (), namespace="gen2", node_name="rogue")
     rogue.advertise(contract.TOPIC_BATTERY_COMMAND)
+    stop = threading.Event()
+
+    def flood():
+        while not stop.wait(0.01):
+            rogue.publish(contract.TOPIC_BATTERY_COMMAND, contract.command_message(time.time_ns() + 10**10, 5.0))
+
+    flooding = threading.Thread(target=flood, daemon=True)
+    flooding.start()
     demo = subprocess.Popen([str(DEMO), "--case", "kundur_two_area", "--mode", "realtime", "--b", "0.1",
-                             "--duration", "1", "--out", str(tmp_path), "--domain-id", str(domain)],
+                             "--duration", "3", "--deployment", deployment, "--out", str(tmp_path),
+                             "--domain-id", str(domain)],
                             env=ros_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         stdout, stderr = demo.communicate(timeout=300)
     finally:
         demo.kill()
+        stop.set()
+        flooding.join()
         rogue.close()
-    # The demo's own verdict is the evidence that the rogue was in the loop (it names /gen2's writer alarms);
-    # a wait for the rogue's matches before it failed twice in whole-suite runs and said nothing of the demo.
     assert demo.returncode == 3, stdout + stderr
     (line,) = [line for line in stdout.splitlines() if "COMPROMISED" in line]
     assert line.strip().startswith("b = 0.1: COMPROMISED (not a valid result): /gen2: ") and "/gen1" not in line
     assert "writer alarms" in line
     assert len(stderr.strip().splitlines()) == 1 and "1 of 1 run(s) compromised" in stderr
     (run,) = json.loads((tmp_path / "summary.json").read_text())["runs"]
+    # The plant names the second writer (its graph); its commands reach the plant only once the rogue's own side
+    # has matched the plant's reader, not always within the run (seen once in 20 under load): not asserted here,
+    # test_command_trust's attack 1 floods a plant that is sure to hear it.
     assert list(run["compromised"]) == ["gen2"] and run["compromised"]["gen2"]["writer_alarms"] > 0
-    assert run["generators"]["gen2"]["max_abs_applied_power_pu"] <= 0.1
+    gen2 = run["generators"]["gen2"]
+    assert 0.0 < gen2["max_abs_applied_power_pu"] <= 0.1, "its controller's commands applied, never above b"
+    assert gen2["trust"]["foreign_commands"] == 0 and gen2["samples"] >= 140
+    assert run["in_synchronism"] and all(g["in_synchronism"] for g in run["generators"].values())
 
 
 def test_the_launch_file_passes_the_c37118_stream_to_the_network_plant(network_launch):

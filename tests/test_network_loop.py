@@ -194,8 +194,8 @@ def test_runtime_changes_are_rejected_with_their_reason(tmp_path):
 
     domain = fresh_domain_id()
     with node_processes(tmp_path, domain) as start:
-        start("plant", PLANT, {"wait_for_subscribers": 1})
-        start("controller", CONTROLLER, {}, ("-r", "__ns:=/gen1"))
+        start("plant", PLANT, {"wait_for_subscribers": 1, "allow_tuning": True})
+        start("controller", CONTROLLER, {"allow_tuning": True}, ("-r", "__ns:=/gen1"))
         plant, close_plant = parameter_client(domain, "network_plant")
         controller, close_controller = parameter_client(domain, "/gen1/controller")
         try:

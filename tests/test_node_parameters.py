@@ -1,4 +1,4 @@
-"""Node parameters: declared with ranges, validated at start-up and on every runtime change."""
+"""Node parameters: declared with ranges, validated at start-up, locked from the start unless allow_tuning."""
 
 from __future__ import annotations
 
@@ -12,7 +12,9 @@ from rosproc import fresh_domain_id, node_processes
 pytestmark = pytest.mark.ros
 
 CONTROLLER = "nni_battery_controller.controller_node"
+COMPOSED = "nni_battery_controller.composed_controllers"
 PLANT = "nni_plant_sim.plant_node"
+NETWORK_PLANT = "nni_plant_sim.network_plant_node"
 
 
 @pytest.mark.parametrize("module, params, reason", [
@@ -32,6 +34,19 @@ def test_invalid_start_up_values_stop_the_node_with_one_line(tmp_path, module, p
         output = node.output()
     assert status != 0
     assert reason in output
+    assert "Traceback" not in output
+    assert len([line for line in output.splitlines() if line.strip()]) == 1, output
+
+
+@pytest.mark.parametrize("module", [PLANT, NETWORK_PLANT])
+def test_a_plant_without_the_runs_key_stops_with_one_line(tmp_path, module):
+    """command_authentication hmac (the default) and no NNI_COMMAND_KEY_FILE: nothing to verify commands with."""
+    with node_processes(tmp_path, fresh_domain_id()) as start:
+        node = start("node", module, env={"NNI_COMMAND_KEY_FILE": ""})
+        status = node.wait(timeout=30)
+        output = node.output()
+    assert status == 2
+    assert "command_authentication hmac needs the run's key: set NNI_COMMAND_KEY_FILE" in output
     assert "Traceback" not in output
     assert len([line for line in output.splitlines() if line.strip()]) == 1, output
 
@@ -83,7 +98,7 @@ def test_runtime_change_is_revalidated_and_rejected_with_reason(tmp_path):
 
     domain = fresh_domain_id()
     with node_processes(tmp_path, domain) as start:
-        start("controller", CONTROLLER, {"battery_limit_pu": 0.3})
+        start("controller", CONTROLLER, {"battery_limit_pu": 0.3, "allow_tuning": True})
         client, close = parameter_client(domain, "controller")
         try:
             assert client.wait_for_services(timeout_sec=20.0)
@@ -100,13 +115,14 @@ def test_runtime_change_is_revalidated_and_rejected_with_reason(tmp_path):
             close()
 
 
-def test_a_waiting_plant_takes_changes_but_not_of_its_mode(tmp_path):
-    """Before its run the plant's parameters are validated and applied; the mode chose its publishers at start."""
+def test_a_waiting_plant_allowed_tuning_takes_changes_but_not_of_its_mode(tmp_path):
+    """allow_tuning: before its run the plant's parameters are validated and applied; the mode chose its publishers
+    at start."""
     from rclpy.parameter import Parameter
 
     domain = fresh_domain_id()
     with node_processes(tmp_path, domain) as start:
-        start("plant", PLANT, {"wait_for_subscribers": 1})
+        start("plant", PLANT, {"wait_for_subscribers": 1, "allow_tuning": True})
         client, close = parameter_client(domain, "plant")
         try:
             assert client.wait_for_services(timeout_sec=20.0)
@@ -118,3 +134,47 @@ def test_a_waiting_plant_takes_changes_but_not_of_its_mode(tmp_path):
             assert (values[0].string_value, values[1].double_value) == ("realtime", 0.01)
         finally:
             close()
+
+
+def test_no_process_changes_a_nodes_safety_parameters_from_the_start(tmp_path):
+    """Without allow_tuning an idle controller (as ``ros2 run`` starts it), composed controllers, a waiting plant and
+    a waiting network plant refuse every change (limits, model, gains, noise, use_sim_time, the switch itself), and
+    still answer reads; each node stated what it runs with at start."""
+    from rclpy.parameter import Parameter
+
+    domain = fresh_domain_id()
+    attempts = {
+        "controller": [("battery_limit_pu", 100.0), ("p_mech_pu", 0.0), ("gain_k", 0.9), ("allow_tuning", True)],
+        "gen2/controller": [("battery_limit_pu", 100.0), ("tau_s", 1.0)],
+        "composed_controllers": [("namespaces", ["/gen9"])],
+        "plant": [("battery_rating_pu", 100.0), ("noise_angle_std_rad", 1.0), ("use_sim_time", True)],
+        "network_plant": [("noise_angle_std_rad", 1.0), ("battery_ratings_pu", [100.0] * 4)],
+    }
+    with node_processes(tmp_path, domain) as start:
+        started = [start("controller", CONTROLLER, {"battery_limit_pu": 0.3}),
+                   start("composed", COMPOSED, {"namespaces": ["/gen1", "/gen2"], "battery_limit_pu": 0.3}),
+                   start("plant", PLANT, {"wait_for_subscribers": 1, "battery_rating_pu": 0.3}),
+                   start("network_plant", NETWORK_PLANT, {"wait_for_subscribers": 1, "battery_rating_pu": 0.3})]
+        results, reads = {}, {}
+        for node, changes in attempts.items():
+            client, close = parameter_client(domain, node)
+            try:
+                assert client.wait_for_services(timeout_sec=30.0), node
+                for name, value in changes:
+                    results[(node, name)] = _call(client.set_parameters([Parameter(name, value=value)])).results[0]
+                reads[node] = list(_call(client.get_parameters([changes[0][0]])).values)
+            finally:
+                close()
+        outputs = {proc.name: proc.output() for proc in started}
+    for key, result in results.items():
+        assert not result.successful, f"{key} was accepted"
+        assert "locked from the start" in result.reason or "read-only" in result.reason, result.reason
+    assert all(len(values) == 1 for values in reads.values()), {node: len(values) for node, values in reads.items()}
+    assert reads["controller"][0].double_value == 0.3 and reads["plant"][0].double_value == 0.3
+    assert reads["gen2/controller"][0].double_value == 0.3
+    assert reads["network_plant"][0].double_value == 0.0
+    assert '"node": "/controller", "parameters": {' in outputs["controller"]
+    assert '"battery_limit_pu": 0.3' in outputs["controller"]
+    for node in ("/composed_controllers", "/gen1/controller", "/gen2/controller"):
+        assert f'"node": "{node}"' in outputs["composed"]
+    assert '"battery_rating_pu": 0.3' in outputs["plant"] and '"node": "/network_plant"' in outputs["network_plant"]

@@ -12,35 +12,44 @@ are read from the same files) and then the arguments. The model arguments
 to the controller's model of it, ``pmu_rate_hz`` to the plant and as
 ``sample_rate_hz`` to the controller. ``pmu_port`` (-1: none) serves the
 plant's PMU as an IEEE C37.118.2 stream on that TCP port of ``pmu_host``
-(loopback by default) with IDCODE ``pmu_idcode``. All topics are relative, so the namespace
-argument puts one generator's loop under /<namespace>. ``measurements:=c37118``
+(loopback by default) with IDCODE ``pmu_idcode``. ``measurements:=c37118``
 feeds the controller through that stream (on port 4712 when ``pmu_port`` gives
-none) and a ``c37118_client`` node (as ``nni-demo --measurements c37118``;
-the rate must be one C37.118 allows). With ``duration_s > 0``
+none; 0, a port the launch cannot learn, is refused) and a ``c37118_client``
+node (as ``nni-demo --measurements c37118``; the rate must be one C37.118
+allows). All topics are relative, so the namespace
+argument puts one generator's loop under /<namespace>. With ``duration_s > 0``
 the launch shuts down when the plant exits: the controller and the logger get
 SIGINT, and the logger finishes the recording.
+
+The plant's battery is rated b (``battery_limit_pu``: it clips every command
+there). Each launch makes a fresh command key, handed to the plant and the
+controller only (``NNI_COMMAND_KEY_FILE``) and removed at shutdown, and starts
+the plant's run only once both nodes have stated at start the parameters it
+gave them (:mod:`nni_msgs_adapter.ros.launch_trust`); on a difference it logs
+one line and shuts down before any sample.
 """
 
 import os
 
+import yaml
+
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, EmitEvent, RegisterEventHandler, SetEnvironmentVariable
+from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler, SetEnvironmentVariable
 from launch.conditions import IfCondition
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
-from launch.substitutions import EnvironmentVariable, LaunchConfiguration, PythonExpression
+from launch.substitutions import EnvironmentVariable, LaunchConfiguration
 from launch_ros.actions import Node
 
-from nni_battery_controller.demo_c37118 import LAUNCH_PORT, STREAM_TOPIC, client_parameters
+from nni_battery_controller import demo_c37118
 from nni_msgs_adapter.ros.processes import parameter_text
 from nni_msgs_adapter.ros.defaults import load_defaults
 
 #: Launch arguments that are plant parameters (package nni_plant_sim, config/plant.yaml).
 PLANT_ARGUMENTS = (
     "mode", "pmu_rate_hz", "duration_s", "scenario", "delta0_rad", "speed0_rad_s", "step_p_mech_pu",
-    "step_duration_s", "fault_p_max_pu", "clearing_time_s", "damping_pu", "battery_rating_pu",
-    "pmu_port", "pmu_host", "pmu_idcode",
+    "step_duration_s", "fault_p_max_pu", "clearing_time_s", "damping_pu", "pmu_port", "pmu_host", "pmu_idcode",
 )
 #: Launch arguments that are controller parameters (package nni_battery_controller, config/controller.yaml).
 CONTROLLER_ARGUMENTS = ("tau_s", "gain_k", "gain_l", "alpha", "battery_limit_pu")
@@ -70,42 +79,70 @@ def arguments(node: str, names) -> list:
             for name in names]
 
 
+def launched_nodes(values: dict) -> dict:
+    """``{node: the parameters the launch gives it beside its config YAML}`` for the launch arguments ``values``
+    (each as a value): the plant's battery rated the controller's b, its run held for the read-back; with
+    ``measurements`` c37118 the client node too (ValueError for a ``measurements`` or port that cannot be)."""
+    measurements = values["measurements"]
+    if measurements not in demo_c37118.MEASUREMENTS:
+        raise ValueError(f"measurements must be one of {', '.join(demo_c37118.MEASUREMENTS)}, got {measurements!r}")
+    plant = {**{name: values[name] for name in (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS)},
+             "battery_rating_pu": values["battery_limit_pu"], "hold_until_released": True,
+             "wait_for_subscribers": demo_c37118.plant_readers(measurements, 2)}  # the controller and the logger
+    nodes = {
+        "plant": plant,
+        "controller": {**{name: values[name] for name in (*CONTROLLER_ARGUMENTS, *MODEL_ARGUMENTS)},
+                       "sample_rate_hz": values["pmu_rate_hz"], **demo_c37118.controller_parameters(measurements)},
+        "mcap_logger": {name: values[name] for name in LOGGER_ARGUMENTS},
+    }
+    if measurements == "c37118":  # it connects once the controller and the logger read its c37118/pmu
+        if values["pmu_port"] == 0:
+            raise ValueError("measurements:=c37118 needs a fixed pmu_port (the client connects to it), got 0")
+        port = demo_c37118.LAUNCH_PORT if values["pmu_port"] < 0 else values["pmu_port"]
+        plant.update(demo_c37118.plant_parameters(measurements, port, values["pmu_host"]))
+        nodes["c37118_client"] = demo_c37118.client_parameters(port, values["mode"], 2, (),
+                                                               demo_c37118.client_host(values["pmu_host"]),
+                                                               values["pmu_idcode"])
+    return nodes
+
+
 def generate_launch_description():
-    config = {name: LaunchConfiguration(name)
-              for name in (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS, *CONTROLLER_ARGUMENTS, *LOGGER_ARGUMENTS)}
-    namespace = LaunchConfiguration("namespace")
+    from nni_battery_controller.controller_config import parameters as controller_node_parameters
+    from nni_msgs_adapter.ros.launch_trust import readback_release, run_key_environment
+    from nni_msgs_adapter.ros.readback import expected_parameters
+    from nni_plant_sim.plant_config import parameters as plant_node_parameters
+
+    names = (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS, *CONTROLLER_ARGUMENTS, *LOGGER_ARGUMENTS, "measurements")
+
+    def setup(context):
+        values = {name: yaml.safe_load(context.launch_configurations[name]) for name in names}
+        values["pmu_host"] = context.launch_configurations["pmu_host"]  # an address, text whatever YAML makes of it
+        given = launched_nodes(values)
+        namespace = context.launch_configurations["namespace"]
+        key_env, remove_key = run_key_environment()  # the plant's and the controller's, not the logger's
+        plant = Node(package="nni_plant_sim", executable="plant_node", name="plant", namespace=namespace,
+                     ros_arguments=["--enclave", "/nni/plant"], parameters=[config_file("plant"), given["plant"]],
+                     additional_env=key_env)
+        controller = Node(package="nni_battery_controller", executable="controller_node", name="controller",
+                          namespace=namespace, ros_arguments=["--enclave", "/nni/controller"],
+                          parameters=[config_file("controller"), given["controller"]], additional_env=key_env)
+        logger = Node(package="nni_msgs_adapter", executable="mcap_logger", name="mcap_logger", namespace=namespace,
+                      ros_arguments=["--enclave", "/nni/mcap_logger"],
+                      parameters=[config_file("mcap_logger"), given["mcap_logger"]])
+        client = [Node(package="nni_msgs_adapter", executable="c37118_client", name="c37118_client",
+                       namespace=namespace, ros_arguments=["--enclave", "/nni/c37118_client"],
+                       parameters=[given["c37118_client"]])] if "c37118_client" in given else []
+        prefix = "/".join(("", *filter(None, (namespace.strip("/"),))))
+        started = [(controller, {f"{prefix}/controller": expected_parameters(controller_node_parameters(),
+                                                                              given["controller"])}),
+                   (plant, {f"{prefix}/plant": expected_parameters(plant_node_parameters(), given["plant"])})]
+        # The plant runs once both nodes stated what they were given; the run is over when it exits
+        # (duration_s > 0): stop the others, finish the recording.
+        return [*remove_key, *readback_release(started, plant, key_env), logger, controller, *client, plant,
+                RegisterEventHandler(OnProcessExit(target_action=plant, on_exit=[
+                    EmitEvent(event=Shutdown(reason="the plant finished its run"))]))]
+
     secure = IfCondition(LaunchConfiguration("use_security"))
-    through_stream = ["'", LaunchConfiguration("measurements"), "' == 'c37118'"]
-
-    def chosen(stream, ros):
-        """``stream`` with measurements:=c37118, else ``ros`` (Python literals, or substitutions)."""
-        return PythonExpression([*stream, " if ", *through_stream, " else ", *ros])
-
-    # Through the stream: served (on LAUNCH_PORT when pmu_port gives none), FREQ as floats, waiting for the client.
-    port = config["pmu_port"]
-    stream = {"pmu_port": chosen([f"({LAUNCH_PORT} if int('", port, "') < 0 else int('", port, "'))"], [port]),
-              "pmu_freq_format": chosen(["'float'"], ["'integer'"]), "pmu_wait_for_pdcs": chosen(["1"], ["0"])}
-    plant = Node(package="nni_plant_sim", executable="plant_node", name="plant", namespace=namespace,
-                 ros_arguments=["--enclave", "/nni/plant"],
-                 parameters=[config_file("plant"),
-                             {**{name: config[name] for name in (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS)},
-                              # the controller and the logger on pmu; through the stream the logger, and the client
-                              "wait_for_subscribers": chosen(["1"], ["2"]), **stream}])
-    controller = Node(package="nni_battery_controller", executable="controller_node", name="controller",
-                      namespace=namespace, ros_arguments=["--enclave", "/nni/controller"],
-                      parameters=[config_file("controller"),
-                                  {**{name: config[name] for name in (*CONTROLLER_ARGUMENTS, *MODEL_ARGUMENTS)},
-                                   "sample_rate_hz": config["pmu_rate_hz"],
-                                   "measurement_topic": chosen([repr(STREAM_TOPIC)], ["'pmu'"])}])
-    # It connects once the controller and the logger read its c37118/pmu.
-    client = Node(package="nni_msgs_adapter", executable="c37118_client", name="c37118_client", namespace=namespace,
-                  condition=IfCondition(PythonExpression(through_stream)),
-                  ros_arguments=["--enclave", "/nni/c37118_client"],
-                  parameters=[client_parameters(stream["pmu_port"], config["mode"], 2, host=config["pmu_host"],
-                                                idcode=config["pmu_idcode"])])
-    logger = Node(package="nni_msgs_adapter", executable="mcap_logger", name="mcap_logger", namespace=namespace,
-                  ros_arguments=["--enclave", "/nni/mcap_logger"],
-                  parameters=[config_file("mcap_logger"), {name: config[name] for name in LOGGER_ARGUMENTS}])
     return LaunchDescription([
         DeclareLaunchArgument("namespace", default_value="", description="namespace of this generator's nodes"),
         *arguments("plant", (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS)),
@@ -122,11 +159,5 @@ def generate_launch_description():
         SetEnvironmentVariable("ROS_SECURITY_ENABLE", "true", condition=secure),
         SetEnvironmentVariable("ROS_SECURITY_STRATEGY", "Enforce", condition=secure),
         SetEnvironmentVariable("ROS_SECURITY_KEYSTORE", LaunchConfiguration("keystore"), condition=secure),
-        logger,
-        controller,
-        client,
-        plant,
-        # The run is over when the plant exits (duration_s > 0): stop the others, finish the recording.
-        RegisterEventHandler(OnProcessExit(target_action=plant, on_exit=[
-            EmitEvent(event=Shutdown(reason="the plant finished its run"))])),
+        OpaqueFunction(function=setup),
     ])

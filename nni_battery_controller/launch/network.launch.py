@@ -29,6 +29,11 @@ each, on that TCP port of ``pmu_host`` (loopback by default), IDCODE
 ``c37118/pmu``, fed from that stream (on port 4712 when ``pmu_port`` gives
 none) by a ``c37118_client`` node (as ``nni-demo --measurements c37118``).
 
+Each launch makes a fresh command key (the plant's and the controllers' ``NNI_COMMAND_KEY_FILE``, removed at
+shutdown), gives each generator's battery its b as its rating (``battery_ratings_pu``), and starts the plant's
+run only once every node has stated at start the parameters the launch gave it (:func:`readbacks`,
+:mod:`nni_msgs_adapter.ros.launch_trust`); on a difference it logs one line and shuts down.
+
 ``launch`` is imported inside :func:`generate_launch_description` only, so
 that :func:`network_nodes` (the nodes a launch would create, as plain dicts)
 can be imported and checked where ``launch`` is not installed.
@@ -41,6 +46,7 @@ import yaml
 from nni_battery_controller.demo_c37118 import LAUNCH_PORT, MEASUREMENTS, client_host, client_parameters, plant_readers
 from nni_battery_controller.demo_c37118 import controller_parameters as measurement_topic
 from nni_battery_controller.demo_c37118 import plant_parameters as stream_parameters
+from nni_battery_controller.controller_config import parameters as controller_node_parameters
 from nni_battery_controller.network_deployment import (
     battery_limits,
     controller_parameters,
@@ -53,6 +59,7 @@ from nni_battery_controller.network_deployment import (
 from nni_battery_controller.network_sim import NetworkLaw
 from nni_msgs_adapter.ros.defaults import controller_defaults
 from nni_msgs_adapter.ros.processes import PARTICIPANTS_ENV
+from nni_msgs_adapter.ros.readback import expected_parameters
 from nni_plant_sim.cases import CASES, load_network
 from nni_plant_sim.network_plant_config import parameters as plant_node_parameters, scenario_from
 from nni_plant_sim.network_scenarios import SCENARIO_PARAMETERS
@@ -194,7 +201,7 @@ def network_nodes(given: dict) -> list[dict]:
             raise ValueError("measurements:=c37118 needs a fixed pmu_port (the client connects to it), got 0")
         port = LAUNCH_PORT if stream["pmu_port"] < 0 else stream["pmu_port"]
         stream.update(stream_parameters(measurements, port, stream["pmu_host"]))
-    plant = {**plant_parameters(case, scenario, values["mode"], rate, float(_value(values["duration_s"])),
+    plant = {**plant_parameters(case, scenario, values["mode"], rate, float(_value(values["duration_s"])), limits,
                                 plant_readers(measurements, 2)), **stream}
     nodes = [{"package": LOGGER[0], "executable": LOGGER[1], "name": "mcap_logger", "namespace": "",
               "parameters": {"output_path": values["output_path"]}}]
@@ -212,6 +219,15 @@ def network_nodes(given: dict) -> list[dict]:
     return [{**node, "env": env} for node in nodes]
 
 
+def readbacks(nodes: list[dict]) -> list[dict]:
+    """Per node of :func:`network_nodes`: ``{its fully qualified name: the parameters it must state at start}``
+    (the plant and the controllers; ``{}`` for the logger, which holds nothing of the loop's safety)."""
+    tables = {CONTROLLER[1]: controller_node_parameters(), PLANT[1]: plant_node_parameters()}
+    return [{"/".join(("", *filter(None, (node["namespace"].strip("/"), node["name"])))):
+             expected_parameters(tables[node["executable"]], node["parameters"])}
+            if node["executable"] in tables else {} for node in nodes]
+
+
 def generate_launch_description():
     from launch import LaunchDescription
     from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
@@ -219,14 +235,22 @@ def generate_launch_description():
     from launch.events import Shutdown
     from launch_ros.actions import Node
 
+    from nni_msgs_adapter.ros.launch_trust import readback_release, run_key_environment
+
     def setup(context):
         specs = network_nodes({name: context.launch_configurations[name] for name in table})
+        key_env, remove_key = run_key_environment()  # the plant's and the controllers' only
         nodes = [Node(package=spec["package"], executable=spec["executable"], name=spec["name"],
-                      namespace=spec["namespace"], parameters=[spec["parameters"]], additional_env=spec["env"])
+                      namespace=spec["namespace"], parameters=[spec["parameters"]],
+                      additional_env={**spec["env"], **(key_env if spec["executable"] in (PLANT[1], CONTROLLER[1])
+                                                         else {})})
                  for spec in specs]
-        # The run is over when the plant (the last node) exits: stop the others, finish the recording.
-        return [*nodes, RegisterEventHandler(OnProcessExit(target_action=nodes[-1], on_exit=[
-            EmitEvent(event=Shutdown(reason="the network plant finished its run"))]))]
+        started = [(node, passed) for node, passed in zip(nodes, readbacks(specs)) if passed]
+        # The plant (the last node) runs once every node stated what it was given; the run is over when it
+        # exits: stop the others, finish the recording.
+        return [*remove_key, *readback_release(started, nodes[-1], key_env), *nodes,
+                RegisterEventHandler(OnProcessExit(target_action=nodes[-1], on_exit=[
+                    EmitEvent(event=Shutdown(reason="the network plant finished its run"))]))]
 
     table = arguments()
     return LaunchDescription([

@@ -23,7 +23,7 @@ import math
 from nni_battery_controller.law import ControllerParams
 from nni_battery_controller.network_sim import ANGLE_REFERENCES
 from nni_msgs_adapter.ros.defaults import controller_defaults
-from nni_msgs_adapter.ros.ros_params import Spec, locked_changes
+from nni_msgs_adapter.ros.ros_params import Spec, allow_tuning, locked_changes
 from nni_plant_sim.model import SmibParams
 
 
@@ -64,11 +64,13 @@ def parameters() -> tuple[Spec, ...]:
         Spec("measurement_topic", defaults["measurement_topic"], "Where the measurements are read (relative, "
              "under each generator's namespace): pmu, the plant's own, or c37118/pmu, the same read from its "
              "IEEE C37.118 stream by the c37118_client node.", choices=MEASUREMENT_TOPICS),
+        allow_tuning(defaults["allow_tuning"]),
     )
 
 
-#: Live-tunable while running (validated, K < L): the law's gains. Everything else is locked once the
-#: controller answers measurements: the limit b, the plant model, the rate and the input gate's bounds.
+#: With allow_tuning, live-tunable while running (validated, K < L): the law's gains. Everything else is locked
+#: once the controller answers measurements: the limit b, the plant model, the rate and the input gate's bounds.
+#: Without allow_tuning every parameter is locked from the start (:func:`.ros_params.install_validation`).
 TUNABLE = ("tau_s", "gain_k", "gain_l", "alpha")
 
 

@@ -4,6 +4,10 @@ Only translates between ROS and :class:`~nni_battery_controller.controller_core.
 (the input gate, the centre of inertia for reference coi, the law the offline sampled simulation runs).
 Its measurements come from ``pmu`` or, with ``measurement_topic c37118/pmu``, from the plant's C37.118
 stream through the PDC client node.
+With the run's key (``NNI_COMMAND_KEY_FILE``) it seals every command it sends
+(:class:`nni_msgs_adapter.ros.command_auth.CommandSigner`, the key of its own
+command topic); without one its commands carry no seal, which only a plant
+started with ``command_authentication none`` applies.
 """
 
 from __future__ import annotations
@@ -12,7 +16,7 @@ import sys
 
 from nni_battery_controller.controller_config import ControllerConfig, parameters, prepared
 from nni_battery_controller.controller_core import ControllerCore
-from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros import command_auth, contract
 from nni_msgs_adapter.ros.loop_node import LoopNode, StampedPublisher
 from nni_msgs_adapter.ros.node_main import run_node
 
@@ -24,8 +28,11 @@ class ControllerNode(LoopNode):
         super().__init__("controller", parameters(), **kwargs)
         config = ControllerConfig(self.initial_values, self.get_namespace())
         self._core, self._clock_ns = ControllerCore(config), None
-        self._commands, self._states = (StampedPublisher(self, topic) for topic in (
-            contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE))
+        key = command_auth.key_from_environment()
+        self._commands = StampedPublisher(self, contract.TOPIC_BATTERY_COMMAND,
+                                          layout=contract.command_bytes(sealed=key is not None))
+        self._signer = None if key is None else command_auth.CommandSigner(key, self._commands.publisher.topic_name)
+        self._states = StampedPublisher(self, contract.TOPIC_CONTROLLER_STATE)
         ControllerCore.warm_up(config)
         self._pmu_subs = [contract.subscribe(self, config.measurement_topic, lambda data, i=i: self._on_pmu(i, data),
                                              ns, raw=True) for i, ns in enumerate(config.pmu_namespaces)]
@@ -50,9 +57,16 @@ class ControllerNode(LoopNode):
         answer = self._core.receive(index, reading, effort, self._pmu_subs[index].get_publisher_count(),
                                     arrival_ns, self._clock_ns, self._clock_sub.get_publisher_count)
         if answer is not None:
-            self._commands.publish(answer.stamp_ns, answer.power_pu)
+            self._command(answer.stamp_ns, answer.power_pu)
             self._stale_timer.reset()  # bookkeeping after the answer is out: none of it changes the command
             self._states.publish(*answer.signals())
+
+    def _command(self, stamp_ns: int, power_pu: float) -> None:
+        """Send a battery command, sealed when the node has the run's key."""
+        if self._signer is None:
+            self._commands.publish(stamp_ns, power_pu)
+        else:
+            self._commands.publish(stamp_ns, power_pu, self._signer.seal(stamp_ns, power_pu))
 
     def _on_clock(self, data: bytes) -> None:
         try:
@@ -68,7 +82,7 @@ class ControllerNode(LoopNode):
     def _check_stale(self) -> None:
         stamp_ns = self._core.silence(self.now_ns(), self._clock_sub.get_publisher_count() > 0)
         if stamp_ns is not None:
-            self._commands.publish(stamp_ns, 0.0)
+            self._command(stamp_ns, 0.0)
             self.get_logger().warning(f"no measurement for {self._core.config.stale_after_s:g} s: battery power set to zero")
 
     def publish_diagnostics(self) -> None:

@@ -1,6 +1,9 @@
 """What the SMIB demo (``nni-demo``) and the network demo (``nni-demo --case``) share.
 
-A run's plant: waiting for it to finish (a realtime run's progress shown on a
+A run's key (:func:`nni_msgs_adapter.ros.command_auth.run_key`, in the plant's
+and the controllers' environment only) and its start: the read-back of every
+node's parameters against what was passed, then the plant's release
+(:func:`start_when_read_back`); waiting for it to finish (a realtime run's progress shown on a
 terminal), its final diagnostics, its clean exit; the recording's
 completeness (the logger's counts against the plant's); whether a run can be
 trusted (the plant's trust counters, the power applied against b) and the
@@ -14,6 +17,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import sys
 import time
 from importlib import metadata
@@ -24,15 +28,20 @@ import numpy as np
 from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX
 from nni_msgs_adapter.recording.runs import GeneratorRun
 from nni_msgs_adapter.ros.cli_support import CliError, write_json
+from nni_msgs_adapter.ros.command_auth import KEY_FILE_ENV, remove_key_file
 from nni_msgs_adapter.ros.processes import ChildError
+from nni_msgs_adapter.ros.readback import mismatch, stated_parameters
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
+from nni_plant_sim.reporting import COMPROMISING_KEYS
 
 #: Seconds the logger gets after the plant ends, for the last reliable messages to land.
 DRAIN_S = 0.5
 #: Exit status of a call with a compromised run (the battery commanded by a stranger, or beyond b).
 EXIT_COMPROMISED = 3
 #: The plant's trust counters (INTERFACES.md item 1) of which any non-zero one compromises a run.
-TRUST_COUNTERS = ("foreign_commands", "unsolicited_commands", "writer_alarms")
+TRUST_COUNTERS = COMPROMISING_KEYS
+#: Longest wait, s, for a node to state the parameters it runs with (its process starting, imports included).
+READBACK_WAIT_S = 120.0
 
 
 def software_version() -> str:
@@ -75,6 +84,39 @@ def compromised_words(b: float, reasons: dict) -> list[str]:
 def compromised_text(b: float, reasons: dict) -> str:
     """One line saying why a run is compromised."""
     return COMPROMISED_PREFIX + "; ".join(compromised_words(b, reasons))
+
+
+def key_environment(key_file) -> dict:
+    """What the plant's and the controllers' processes get beside the run's environment: the run's key file."""
+    return {KEY_FILE_ENV: str(key_file)}
+
+
+def start_when_read_back(started: list, plant, logs: Path, key_file=None) -> None:
+    """Release the ``plant`` (SIGUSR1: it holds its run) once every child of ``started`` (``(child, {node:
+    expected parameters})``) has stated them; CliError (one line: nothing runs) if one states others, exits or
+    says nothing within READBACK_WAIT_S.
+
+    ``key_file``: the run's key, removed before the release: every node that states its parameters has read it
+    at start, so that not even a demo killed mid-run (SIGKILL) leaves it behind."""
+    deadline = time.monotonic() + READBACK_WAIT_S
+    for child, passed in started:
+        while True:
+            stated = stated_parameters(child.output())
+            wrong = mismatch(passed, stated)
+            if wrong is not None:
+                raise CliError(f"not started: {wrong} (logs in {logs})")
+            if set(passed) <= set(stated):
+                break
+            if child.poll() is not None:
+                raise CliError(f"the {child.name} exited with status {child.poll()} before stating its parameters: "
+                               f"{child.tail()}")
+            if time.monotonic() > deadline:
+                raise CliError(f"the {child.name} did not state its parameters within {READBACK_WAIT_S:g} s "
+                               f"(logs in {logs})")
+            time.sleep(0.05)
+    if key_file is not None:
+        remove_key_file(key_file)
+    plant.proc.send_signal(signal.SIGUSR1)
 
 
 def plant_summary(output: str, prefix: str = SUMMARY_PREFIX) -> dict:

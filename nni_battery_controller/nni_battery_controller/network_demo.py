@@ -39,10 +39,12 @@ from nni_battery_controller.demo_common import (
     compromised_words,
     exit_status,
     finish_plant,
+    key_environment,
     logger_counts,
     plant_summary,
     run_environment,
     software_version,
+    start_when_read_back,
     write_summary,
 )
 from nni_battery_controller.demo_pmu import StreamWatch, add_pmu_options, stream_parameters, summary_line, wait_text
@@ -66,6 +68,7 @@ from nni_battery_controller.network_deployment import (
     DEPLOYMENTS,
     battery_limits,
     controller_parameters,
+    controller_readbacks,
     default_law,
     generator_limits,
     namespaces,
@@ -88,7 +91,9 @@ from nni_msgs_adapter.ros.cli_support import (
     positive_float,
     run_cli,
 )
+from nni_msgs_adapter.ros.command_auth import run_key
 from nni_msgs_adapter.ros.processes import ChildError, Supervisor, with_participants
+from nni_msgs_adapter.ros.readback import expected_parameters
 from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX
 from nni_plant_sim.cases import CASES, load_network
 from nni_plant_sim.network_plant_node import SUMMARY_PREFIX, parameters as plant_node_parameters
@@ -174,22 +179,22 @@ def parse_arguments(argv=None):
                                          for dest, name in GAINS), reference=args.reference)
     args.gen_limits = generator_limits(args.gen_b, net.size)
     args.stream = stream_parameters(args, given_options(argv), float(net.f0_hz))
-    check_ranges("network plant", plant_node_parameters(), network_plant_parameters(args))
     for b in args.b:
         limits = battery_limits(net.size, b, args.gen_limits)
+        check_ranges("network plant", plant_node_parameters(), network_plant_parameters(args, limits))
         for i in range(net.size):
             check_ranges("controller", controller_node_parameters(),
                          controller_parameters(net, i, limits[i], args.rate, args.law))
     return args
 
 
-def network_plant_parameters(args) -> dict:
-    """The network plant's parameters of every run: the case, its disturbance, the run, its stream; it waits for
-    each pmu's readers (a Rerun bridge among them)."""
+def network_plant_parameters(args, limits) -> dict:
+    """The network plant's parameters for one run of battery limits ``limits``: the case, its disturbance, the
+    run, its stream; it waits for each pmu's readers (a Rerun bridge among them)."""
     readers = demo_c37118.plant_readers(args.measurements, pmu_readers(args.net, args.reference),
                                         args.rerun is not None)
-    return {**plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration, readers),
-            **args.stream}
+    return {**plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration, limits,
+                               readers), **args.stream}
 
 
 def controllers_parameters(args, limits) -> dict:
@@ -296,23 +301,26 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
     only when the bridge has logged every generator's recorded samples."""
     net, spaces = args.net, namespaces(args.net)
     limits = battery_limits(net.size, b, args.gen_limits)
-    plant_params = network_plant_parameters(args)
+    plant_params = network_plant_parameters(args, limits)
     controllers = controllers_parameters(args, limits)
     recording = args.out / recording_name(args, b)
     logs = args.out / "logs" / recording.stem
     started = time.monotonic()
-    with Supervisor(env, logs) as procs:
+    with run_key() as key, Supervisor(env, logs) as procs:
         logger = procs.start_node("mcap_logger", "nni_msgs_adapter.recording.mcap_logger", {
             "output_path": str(recording), "discovery_period_s": 0.1,
             "run_metadata": json.dumps(run_metadata(args, plant_params, controllers))})
-        started_controllers = start_controllers(procs, controllers, args.deployment)
+        started_controllers = start_controllers(procs, controllers, args.deployment, key_environment(key))
         wait_for_recorder(logger, spaces, logs)
-        plant = procs.start_node("network_plant", PLANT, plant_params)
+        plant = procs.start_node("network_plant", PLANT, plant_params, env=key_environment(key))
         watch = StreamWatch(plant) if args.stream else None
         where = watch.listening() if watch is not None else None
         client = demo_c37118.start_client(procs, where, args.measurements, args.mode,
                                           pmu_readers(net, args.reference), [f"/{ns}" for ns in spaces],
                                           args.pmu_idcode)
+        start_when_read_back([*controller_readbacks(started_controllers, controllers, args.deployment),
+                              (plant, {"/network_plant": expected_parameters(plant_node_parameters(), plant_params)})],
+                             plant, logs, key)
         demo_c37118.wait_connected(client, run_label(args, b))
         finish_plant(procs, plant, args, run_label(args, b), SUMMARY_PREFIX, watch)
         for controller in started_controllers:
@@ -365,12 +373,11 @@ def loop_table(result: dict, net, limits) -> list[str]:
     return rows
 
 
-def clipped_lines(result: dict) -> list[str]:
-    """One line per generator whose commands the plant clipped to the battery's rating (the run is then that rating's)."""
-    rating = next(spec.default for spec in plant_node_parameters() if spec.name == "battery_rating_pu")
-    return [f"  /{ns}: {g['trust']['clipped_commands']} command(s) beyond the battery's rating were clipped to it "
-            f"(the network plant's battery_rating_pu, {rating:g} pu): the battery there acted as one of {rating:g} pu"
-            for ns, g in result["generators"].items() if g["trust"].get("clipped_commands", 0)]
+def clipped_lines(result: dict, limits) -> list[str]:
+    """One line per generator whose commands the plant clipped to its battery's rating, b there."""
+    return [f"  /{ns}: {g['trust']['clipped_commands']} command(s) beyond the battery's rating "
+            f"(b = {b_text(float(limits[i]))} pu) were clipped to it"
+            for i, (ns, g) in enumerate(result["generators"].items()) if g["trust"].get("clipped_commands", 0)]
 
 
 def compromised_line(result: dict, limits, spaces) -> str:
@@ -389,7 +396,7 @@ def show_run(args, b: float, env: dict, bridge, index: int, plotted: list) -> di
         print(f"  {run_label(args, b)}: {compromised_line(result, limits, spaces)}")
     else:
         print(textwrap.indent(format_run(outcome, b, args.reference, net), "  "))
-    print("\n".join(loop_table(result, net, limits) + clipped_lines(result)))
+    print("\n".join(loop_table(result, net, limits) + clipped_lines(result, limits)))
     print(f"  wall {result['wall_time_s']:.1f} s, recording {result['recording']}")
     if "c37118" in result:
         print(summary_line(result["c37118"]))

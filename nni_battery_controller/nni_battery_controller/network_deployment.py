@@ -21,8 +21,10 @@ import numpy as np
 import yaml
 
 from nni_battery_controller.controller_config import generator_parameters
+from nni_battery_controller.controller_config import parameters as controller_node_parameters
 from nni_battery_controller.network_sim import NetworkLaw
 from nni_msgs_adapter.ros.defaults import controller_defaults
+from nni_msgs_adapter.ros.readback import expected_parameters
 from nni_plant_sim.cases import DEFAULT_FAULT_BUS
 from nni_plant_sim.network_scenarios import AngleDisplacement, BusFault, LineTrip, MechanicalStep
 
@@ -125,10 +127,12 @@ def pmu_readers(net, reference: str) -> int:
 
 
 def plant_parameters(case: str, scenario_values: dict, mode: str, rate_hz: float, duration_s: float,
-                     readers: int = 2) -> dict:
-    """The network plant node's parameters for one run (it waits for ``readers`` on each generator's pmu)."""
+                     limits, readers: int = 2) -> dict:
+    """The network plant node's parameters for one run: each generator's battery rated its b (``limits``, case
+    order), its run held until the read-back, waiting for ``readers`` on each generator's pmu."""
     return {"case": case, **scenario_values, "mode": mode, "pmu_rate_hz": float(rate_hz),
-            "duration_s": float(duration_s), "wait_for_subscribers": int(readers)}
+            "duration_s": float(duration_s), "wait_for_subscribers": int(readers),
+            "battery_ratings_pu": [float(b) for b in limits], "hold_until_released": True}
 
 
 def participants(net, deployment: str, others: int) -> int:
@@ -142,8 +146,9 @@ def composed_parameters(controllers: dict) -> dict:
     return {f"{ns}/controller": {"ros__parameters": values} for ns, values in controllers.items()}
 
 
-def start_controllers(procs, controllers: dict, deployment: str) -> list:
-    """Start the controllers ``{absolute namespace: node parameters}`` under supervisor ``procs``; the children.
+def start_controllers(procs, controllers: dict, deployment: str, env: dict | None = None) -> list:
+    """Start the controllers ``{absolute namespace: node parameters}`` under supervisor ``procs`` (``env`` added to
+    their environment: the run's key); the children.
 
     ``separate``: one ``controller_node`` process per namespace (log ``controller_gen<i>``); ``composed``: one
     ``composed_controllers`` process with a params file of a section per node, written to the log folder.
@@ -151,10 +156,21 @@ def start_controllers(procs, controllers: dict, deployment: str) -> list:
     if deployment not in DEPLOYMENTS:
         raise ValueError(f"deployment must be one of {', '.join(DEPLOYMENTS)}, got {deployment!r}")
     if deployment == "separate":
-        return [procs.start_node(f"controller_{ns.strip('/')}", CONTROLLER_MODULE, values, ("-r", f"__ns:={ns}"))
-                for ns, values in controllers.items()]
+        return [procs.start_node(f"controller_{ns.strip('/')}", CONTROLLER_MODULE, values, ("-r", f"__ns:={ns}"),
+                                 env) for ns, values in controllers.items()]
     procs.log_dir.mkdir(parents=True, exist_ok=True)
     path = procs.log_dir / f"{COMPOSED_NAME}.yaml"
     path.write_text(yaml.safe_dump(composed_parameters(controllers), default_flow_style=False))
     return [procs.start_node(COMPOSED_NAME, COMPOSED_MODULE, {"namespaces": list(controllers)},
-                             ("--params-file", str(path)))]
+                             ("--params-file", str(path)), env)]
+
+
+def controller_readbacks(children: list, controllers: dict, deployment: str) -> list:
+    """``(child, {node: the parameters it must state})`` of the controllers :func:`start_controllers` started:
+    each controller node its table's defaults and its own values, the composed host its namespaces."""
+    stated = {f"{ns}/controller": expected_parameters(controller_node_parameters(), values)
+              for ns, values in controllers.items()}
+    if deployment == "separate":
+        return [(child, {node: values}) for child, (node, values) in zip(children, stated.items())]
+    tuning = next(spec.default for spec in controller_node_parameters() if spec.name == "allow_tuning")
+    return [(children[0], {f"/{COMPOSED_NAME}": {"namespaces": list(controllers), "allow_tuning": tuning}, **stated})]

@@ -2,8 +2,11 @@
 
 For each b it starts three processes (MCAP logger, controller, plant) with
 localhost-only discovery on one ROS domain (``--domain-id``, else
-$ROS_DOMAIN_ID, else 42; the runs follow one another on it), lets the plant run
-its scenario to the end, stops the others with SIGINT (SIGKILL after a grace
+$ROS_DOMAIN_ID, else 42; the runs follow one another on it), the plant's
+battery rated b and the controller sealing its commands with a fresh key of
+the run (removed after it); compares the parameters the controller and the
+plant state at start with what it gave them (one line and exit 2 if they
+differ: the plant holds its run until then), lets the plant run its scenario to the end, stops the others with SIGINT (SIGKILL after a grace
 period), and reads the recording back to write ``OUT/summary.json``: the keys of
 ``nni-simulate --json`` per run plus loop latency (p50, p99, max in ms, from
 measurement to command arrival at the plant) and dropped / late sample counts
@@ -32,16 +35,19 @@ import time
 from pathlib import Path
 
 from nni_battery_controller import demo_c37118
+from nni_battery_controller.controller_config import parameters as controller_node_parameters
 from nni_battery_controller.demo_common import (
     check_complete,
     compromised_reasons,
     compromised_text,
     exit_status,
     finish_plant,
+    key_environment,
     logger_counts,
     plant_summary,
     run_environment,
     software_version,
+    start_when_read_back,
     write_summary,
 )
 from nni_battery_controller.demo_pmu import StreamWatch, add_pmu_options, stream_parameters, summary_line, wait_text
@@ -65,16 +71,20 @@ from nni_msgs_adapter.ros.cli_support import (
     positive_float,
     run_cli,
 )
+from nni_msgs_adapter.ros.command_auth import run_key
 from nni_msgs_adapter.ros.processes import ChildError, Supervisor
+from nni_msgs_adapter.ros.readback import expected_parameters
 from nni_msgs_adapter.recording.runs import GeneratorRun, read_generator_run, sampled_trajectory
 from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX
 from nni_msgs_adapter.ros.defaults import controller_defaults, plant_defaults
 from nni_plant_sim.cases import CASES
+from nni_plant_sim.plant_config import parameters as plant_node_parameters
 from nni_plant_sim.scenarios import SCENARIO_FIELDS
 
-#: Plant parameters that set up a run without changing its case (the recording name ignores them).
-RUN_CONTROL = frozenset({"mode", "duration_s", "pmu_rate_hz", "wait_for_subscribers", "pmu_host", "pmu_port",
-                         "pmu_idcode", "pmu_freq_format", "pmu_wait_for_pdcs"})
+#: Plant parameters that set up a run without changing its case (the recording name ignores them; the rating is b).
+RUN_CONTROL = frozenset({"mode", "duration_s", "pmu_rate_hz", "wait_for_subscribers", "battery_rating_pu",
+                         "hold_until_released", "pmu_host", "pmu_port", "pmu_idcode", "pmu_freq_format",
+                         "pmu_wait_for_pdcs"})
 
 
 def build_parser() -> OneLineParser:
@@ -119,12 +129,14 @@ def recording_name(b: float, plant: dict | None = None) -> str:
     return f"{'paper' if paper else scenario}_b{'inf' if math.isinf(b) else f'{b:g}'}.mcap"
 
 
-def plant_parameters(args, with_bridge: bool) -> dict:
-    """The plant parameters of one run that differ from the package defaults (or set up the run)."""
+def plant_parameters(args, b: float, with_bridge: bool) -> dict:
+    """The plant parameters of one run that differ from the package defaults (or set up the run): its battery
+    rated b, its run held until the read-back."""
     # It waits for the controller and the logger, and for the Rerun bridge when there is one.
     return {**args.model.plant_node_parameters(), "mode": args.mode, "duration_s": args.duration,
             "pmu_rate_hz": args.rate,
-            "wait_for_subscribers": demo_c37118.plant_readers(args.measurements, 2, with_bridge), **args.stream}
+            "wait_for_subscribers": demo_c37118.plant_readers(args.measurements, 2, with_bridge),
+            "battery_rating_pu": b, "hold_until_released": True, **args.stream}
 
 
 def controller_parameters(args, b: float) -> dict:
@@ -173,20 +185,24 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
     With a Rerun ``bridge`` (run ``index`` of its stream), the plant waits for it
     too, and the run ends only when the bridge has logged every recorded sample.
     """
-    plant_params = plant_parameters(args, with_bridge=bridge is not None)
+    plant_params = plant_parameters(args, b, with_bridge=bridge is not None)
     controller_params = controller_parameters(args, b)
     recording = out / recording_name(b, plant_params)
     logs = out / "logs" / recording.stem
     started = time.monotonic()
-    with Supervisor(env, logs) as procs:
+    with run_key() as key, Supervisor(env, logs) as procs:
         logger = procs.start_node("mcap_logger", "nni_msgs_adapter.recording.mcap_logger", {
             "output_path": str(recording), "discovery_period_s": 0.1,
             "run_metadata": json.dumps(run_metadata(args, plant_params, controller_params))})
-        controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params)
-        plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params)
+        controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params,
+                                      env=key_environment(key))
+        plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params, env=key_environment(key))
         watch = StreamWatch(plant) if args.stream else None
         where = watch.listening() if watch is not None else None
         client = demo_c37118.start_client(procs, where, args.measurements, args.mode, 2, idcode=args.pmu_idcode)
+        start_when_read_back(
+            [(controller, {"/controller": expected_parameters(controller_node_parameters(), controller_params)}),
+             (plant, {"/plant": expected_parameters(plant_node_parameters(), plant_params)})], plant, logs, key)
         demo_c37118.wait_connected(client, f"b = {b:<5g}")
         finish_plant(procs, plant, args, f"b = {b:<5g}", watch=watch)
         controller.stop()

@@ -30,6 +30,9 @@ def parameters() -> tuple[Spec, ...]:
     return (
         Spec("case", values["case"], "Shipped test system.", choices=tuple(CASES)),
         *run_parameters(values),
+        Spec("battery_ratings_pu", values["battery_ratings_pu"], "Each generator's battery rating instead, pu of its "
+             "machine's rating, in case order (.inf: unlimited); empty: battery_rating_pu at every generator.",
+             array_of=float),
         Spec("scenario", values["scenario"], "Disturbance at the start (t = 0, or at plant/start_fault).",
              choices=network_scenarios.NETWORK_SCENARIOS),
         Spec("fault_bus", values["fault_bus"], "bus_fault: the faulted bus (case numbering).", 1, 100000),
@@ -46,6 +49,16 @@ def parameters() -> tuple[Spec, ...]:
         Spec("machine", values["machine"], "mechanical_step (one), angle_displacement: generator bus numbers.",
              array_of=int),
     )
+
+
+def battery_ratings(values: dict, size: int) -> list[float]:
+    """The rating of each of ``size`` generators (ValueError for a list of another length or a rating below 0)."""
+    ratings = list(values["battery_ratings_pu"]) or [values["battery_rating_pu"]] * size
+    if len(ratings) != size:
+        raise ValueError(f"battery_ratings_pu must have one rating per generator ({size}), got {len(ratings)}")
+    if not all(rating >= 0 for rating in ratings):  # NaN fails too
+        raise ValueError(f"battery_ratings_pu must be >= 0 (.inf: unlimited), got {ratings}")
+    return [float(rating) for rating in ratings]
 
 
 def scenario_from(net, values: dict):

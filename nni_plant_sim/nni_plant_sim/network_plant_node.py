@@ -10,7 +10,7 @@ the namespace ``/gen<i>`` (``gen1`` .. ``genN``; the log names which machine is
 which) and has the SMIB plant's message contract there: ``/gen<i>/pmu``,
 ``/gen<i>/plant/state``, ``/gen<i>/battery/command``, and its own status
 ``gen<i>/plant`` on ``/diagnostics``. Powers on the wire (P_E, P_ST, the
-battery rating) are in pu of the machine's rating, so one generator's topics
+battery ratings: ``battery_ratings_pu``, one per generator) are in pu of the machine's rating, so one generator's topics
 look like a SMIB's; angles are the case's (the slack's reference at the load
 flow). Scenarios ``bus_fault``, ``line_trip``, ``mechanical_step`` and
 ``angle_displacement`` with the offline ``nni-simulate --case`` option names as
@@ -31,7 +31,7 @@ from nni_msgs_adapter.ros.node_main import run_node
 from nni_plant_sim.cases import load_network
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.network import electrical_power
-from nni_plant_sim.network_plant_config import parameters, scenario_from
+from nni_plant_sim.network_plant_config import battery_ratings, parameters, scenario_from
 from nni_plant_sim.network_scenarios import AngleDisplacement
 from nni_plant_sim.phasors import frequency_hz, rocof_hz_per_s, terminal_phasors
 from nni_plant_sim.plant_node_base import PlantNodeBase
@@ -57,6 +57,10 @@ class NetworkPlantNode(PlantNodeBase):
         self._scale = net.mbase_mva / net.base_mva  # pu of machine rating -> pu of the system base
         self.namespaces = tuple(f"gen{i + 1}" for i in range(net.size))
         self._labels = tuple({"machine": name} for name in net.names)
+
+    def _ratings(self, values: dict) -> list[float]:
+        """``battery_ratings_pu``, one per generator, or ``battery_rating_pu`` at each."""
+        return battery_ratings(values, self._plant.size)
 
     def _check(self, values: dict) -> None:
         """Nothing to build: every parameter is locked once the node is up."""

@@ -13,7 +13,7 @@ import functools
 import math
 
 from nni_msgs_adapter.ros.defaults import plant_defaults
-from nni_msgs_adapter.ros.ros_params import Spec
+from nni_msgs_adapter.ros.ros_params import Spec, allow_tuning
 from nni_plant_sim.link import Link
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.pmu_stream import stream_parameters
@@ -38,7 +38,16 @@ def run_parameters(defaults: dict) -> tuple[Spec, ...]:
         Spec("discovery_settle_s", defaults["discovery_settle_s"], "Once the subscribers are there, wait this long so that every other "
              "endpoint of theirs has matched too (DDS discovery), s.", 0.0, 10.0),
         Spec("battery_rating_pu", defaults["battery_rating_pu"], "Battery inverter rating (at each generator, pu of its "
-             "machine's rating): commands are clipped to +-rating, pu.", 0.0, 1e3),
+             "machine's rating): commands are clipped to +-rating, pu (.inf: unlimited; nni-demo and the launch files "
+             "give b).", 0.0, math.inf),
+        Spec("command_authentication", defaults["command_authentication"], "Which battery commands count: hmac (those "
+             "sealed under the run's key, NNI_COMMAND_KEY_FILE; others are dropped and counted) or none (those of the "
+             "one writer on battery/command, paired at the start; none while a second writer is there).",
+             choices=("hmac", "none"), read_only=True),
+        Spec("hold_until_released", defaults["hold_until_released"], "Start the run only once the process gets SIGUSR1 "
+             "(nni-demo and the launch files send it when every node's parameters read back as they passed them).",
+             read_only=True),
+        allow_tuning(defaults["allow_tuning"]),
         Spec("noise_angle_std_rad", defaults["noise_angle_std_rad"], "PMU angle noise standard deviation, rad.", 0.0, 1.0),
         Spec("noise_speed_std_rad_s", defaults["noise_speed_std_rad_s"], "PMU speed noise standard deviation, rad/s.", 0.0, 10.0),
         Spec("quantisation_rad", defaults["quantisation_rad"], "PMU angle resolution, rad (0: none).", 0.0, 1.0),

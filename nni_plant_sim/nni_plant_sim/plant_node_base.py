@@ -22,6 +22,14 @@ and departure logged, the stream's counters as status ``c37118_server`` on
 at exit its totals and each PDC's frames sent and dropped as one JSON line,
 ``SUMMARY_PREFIX_STREAM``, before the plant's own).
 
+Commands (``command_authentication``): ``hmac`` (the default) admits only
+those whose seal verifies under the run's key (``NNI_COMMAND_KEY_FILE``,
+:mod:`nni_msgs_adapter.ros.command_auth`; one key per generator's command
+topic); ``none`` pairs with the one writer on the topic, as before keys.
+``hold_until_released``: the run does not start before the process gets
+SIGUSR1 (the demo or the launch file sends it once every node's parameters,
+read back from the lines they print at start, are what it passed).
+
 A plant node sets, in :meth:`_configure_plant`: ``namespaces`` (``("",)``:
 the node's own), ``_plant`` (what :func:`.integrators.advance` integrates),
 ``_fault`` and ``_before`` (the scenario and the pre-fault one, see
@@ -35,11 +43,12 @@ from __future__ import annotations
 
 import json
 import math
+import signal
 
 from rclpy.task import Future
 from std_srvs.srv import Trigger
 
-from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros import command_auth, contract
 from nni_msgs_adapter.ros.loop_node import LoopNode, StampedPublisher
 from nni_msgs_adapter.ros.ros_params import locked_changes
 from nni_plant_sim.plant_config import link_from
@@ -55,8 +64,12 @@ class PlantNodeBase(LoopNode):
 
     def __init__(self, node_name: str, specs, **kwargs):
         super().__init__(node_name, specs, **kwargs)
-        self._specs, values = specs, self.initial_values
+        values = self.initial_values
         self._loop = None  # the reporting core, from the start of the run
+        self._key = run_key(values["command_authentication"])
+        self._released = not values["hold_until_released"]
+        if not self._released:
+            signal.signal(signal.SIGUSR1, lambda number, frame: setattr(self, "_released", True))
         self._configure(values)
         self._stream, self._pdc_wait = self._open_stream(values)
         self._lockstep, self.done = values["mode"] == "lockstep", Future()
@@ -83,14 +96,21 @@ class PlantNodeBase(LoopNode):
     def _configure(self, values: dict) -> None:
         self._values = values
         self._configure_plant(values)
-        self._channels = [CommandChannel(values["battery_rating_pu"], round(values["command_timeout_s"] * 1e9))
-                          for _ in self.namespaces]
+        topics = [self.resolve_topic_name(contract.endpoint(contract.TOPIC_BATTERY_COMMAND, ns)[1])
+                  for ns in self.namespaces]
+        self._channels = [CommandChannel(rating, round(values["command_timeout_s"] * 1e9),
+                                         None if self._key is None else command_auth.CommandVerifier(self._key, topic))
+                          for rating, topic in zip(self._ratings(values), topics)]
         self._sensors = [PmuSensor(values["noise_angle_std_rad"], values["noise_speed_std_rad_s"],
                                    values["quantisation_rad"], values["noise_seed"] + i) for i in range(len(self.namespaces))]
 
+    def _ratings(self, values: dict) -> list[float]:
+        """The battery rating of each generator, pu of its machine's rating."""
+        return [values["battery_rating_pu"]] * len(self.namespaces)
+
     def _validate(self, values: dict) -> dict:
         if self._loop is not None:
-            locked_changes(self._values, values, [spec.name for spec in self._specs])
+            locked_changes(self._values, values, [spec.name for spec in self.specs])
         locked_changes(self._values, values, *self._locked_at_start())
         locked_changes(self._values, values, (*STREAM_PARAMETERS, *(("pmu_rate_hz", "f0_hz") if self._stream else ())),
                        "once the node is up (its C37.118 stream is configured)")
@@ -124,7 +144,8 @@ class PlantNodeBase(LoopNode):
         writers = [sub.get_publisher_count() for sub in self._command_subs]
         fewest, silent = readers.index(min(readers)), writers.index(min(writers))
         state, level, text = self._wait.poll(self.now_ns(), readers[fewest], writers[silent],
-                                             pmu_pubs[fewest].topic_name, self._command_subs[silent].topic_name)
+                                             pmu_pubs[fewest].topic_name, self._command_subs[silent].topic_name,
+                                             self._released)
         if state == "start" and self._pdc_wait is not None:
             state, level, text = self._pdc_wait.poll(self.now_ns(), self._stream.streaming, 1,
                                                      f"the C37.118 stream at {self._stream.where} with data on", "")
@@ -237,12 +258,12 @@ class PlantNodeBase(LoopNode):
             return
         self._check_writers(index)
         try:
-            stamp_ns, power = contract.command_from_bytes(data)
+            stamp_ns, power, seal = contract.command_from_bytes(data)
         except contract.ContractError:
-            stamp_ns, power = 0, math.nan  # malformed: invalid, as a non-finite power is
+            stamp_ns, power, seal = 0, math.nan, None  # malformed: invalid (unauthenticated), as a non-finite power
         if self._stream is not None:
             stamp_ns = self._stream.plant_stamp(stamp_ns)  # an answer to the stream's stamp, to the microsecond
-        self._publish(self._loop.command(index, stamp_ns, power, arrival_ns)[1])
+        self._publish(self._loop.command(index, stamp_ns, power, arrival_ns, seal)[1])
         self._report_events(index)
 
     # --- diagnostics ---------------------------------------------------------------------
@@ -284,3 +305,15 @@ class PlantNodeBase(LoopNode):
                                                dict(zip(self.namespaces, generators))), flush=True)
         if self._gave_up:
             raise SystemExit(1)  # nobody to run with (node_main returns 0 after a node's normal end)
+
+
+def run_key(authentication: str) -> bytes | None:
+    """The run's command key for ``command_authentication`` (None for ``none``); ValueError (one line) without one."""
+    if authentication != "hmac":
+        return None
+    key = command_auth.key_from_environment()
+    if key is None:
+        raise ValueError(f"command_authentication hmac needs the run's key: set {command_auth.KEY_FILE_ENV} to a file "
+                         f"of {command_auth.KEY_BYTES} random bytes of your own (mode 0600), or start the plant with "
+                         "-p command_authentication:=none (the one writer on battery/command is trusted)")
+    return key

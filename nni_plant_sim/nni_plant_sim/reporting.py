@@ -5,8 +5,9 @@ each battery command (with the writers it can see on the command topic) and
 each handshake event, and publishes what comes back. Everything it used to
 decide itself lives here, clock-free and unit-tested:
 
-* :class:`CommandChannel`, one generator's battery: which controller it is
-  paired with, which measurements it sent and which are answered, the rating
+* :class:`CommandChannel`, one generator's battery: whose commands it takes
+  (those that verify under the run's key, or those of the one writer it is
+  paired with), which measurements it sent and which are answered, the rating
   (commands beyond it are clipped), and why any other command is dropped
   (:class:`Verdict`, counted per reason).
 * :class:`RealtimeReporter`: the PMU reporting grid t0 + k T (T the timer's
@@ -37,6 +38,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from nni_msgs_adapter.ros import command_auth
 from nni_plant_sim.link import NO_LINK, DelayLine, Link
 from nni_plant_sim.loop_stats import LoopStats
 
@@ -45,16 +47,21 @@ from nni_plant_sim.loop_stats import LoopStats
 MAX_PLAUSIBLE_POWER_PU = 1e3
 
 #: Counters of the command path, always present in the plant's diagnostics and summary (INTERFACES.md item 1).
-TRUST_KEYS = ("foreign_commands", "unsolicited_commands", "expired_commands", "invalid_commands",
-              "clipped_commands", "writer_alarms")
+TRUST_KEYS = ("unauthenticated_commands", "replayed_commands", "foreign_commands", "unsolicited_commands",
+              "expired_commands", "invalid_commands", "clipped_commands", "writer_alarms")
+#: The counters of which any non-zero one means someone else than the controller wrote on the command topic.
+COMPROMISING_KEYS = ("unauthenticated_commands", "replayed_commands", "foreign_commands", "unsolicited_commands",
+                     "writer_alarms")
 
 
 class Verdict(enum.Enum):
     """What became of one battery command; the dropped ones name their counter."""
 
     APPLIED = "applied"
-    STAND_DOWN = "stand_down_commands"      # the paired controller's zero on stale data: the safe state
-    FOREIGN = "foreign_commands"            # another writer is on the command topic: nothing can be trusted
+    STAND_DOWN = "stand_down_commands"      # the controller's zero on stale data: the safe state
+    UNAUTHENTICATED = "unauthenticated_commands"  # no seal, or one that does not verify under the run's key
+    REPLAYED = "replayed_commands"          # a seal that verifies, on a sequence number already used
+    FOREIGN = "foreign_commands"            # (writer pairing) another writer is on the topic: nothing can be trusted
     UNSOLICITED = "unsolicited_commands"    # answers no measurement the plant sent, or one already answered
     EXPIRED = "expired_commands"            # answers a measurement older than its deadline
     INVALID = "invalid_commands"            # non-finite or implausible power
@@ -66,25 +73,35 @@ def ns_from_seconds(t_s: float) -> int:
 
 
 class CommandChannel:
-    """One generator's battery command path: pairing, answers, limits and the power in force.
+    """One generator's battery command path: whose commands count, answers, limits and the power in force.
 
     ``deadline_ns``: an answer arriving later than this after its measurement's
     instant is expired (realtime; lockstep passes the awaited stamp instead).
 
-    Writer identity: rclpy (Jazzy) gives a subscription callback no publisher
-    GID, so a command cannot be attributed to its writer. The channel is paired
-    with the one writer on the topic (its GID and node name, from the ROS
-    graph); while any other writer is matched, every command is dropped as
-    foreign (nothing can be trusted, the battery falls back to zero at the
-    timeout) and each new writer raises an alarm. When the paired writer has
-    left the graph and exactly one writer remains (a restarted controller),
-    the channel pairs with it, counted in ``re_pairings``.
+    ``verifier`` (a :class:`nni_msgs_adapter.ros.command_auth.CommandVerifier`,
+    the plant's ``command_authentication hmac``): a command counts only if its
+    seal verifies under the run's key, on a sequence number above the last one
+    that did; anything else is dropped (``unauthenticated_commands``,
+    ``replayed_commands``) while the controller's commands keep being applied.
+    A second writer on the topic is still an alarm (``writer_alarms``): the
+    run is flagged, but nothing is blocked.
+
+    Without a verifier (``command_authentication none``, writer pairing): rclpy
+    (Jazzy) gives a subscription callback no publisher GID, so a command cannot
+    be attributed to its writer. The channel is paired with the one writer on
+    the topic (its GID and node name, from the ROS graph); while any other
+    writer is matched, every command is dropped as foreign (nothing can be
+    trusted, the battery falls back to zero at the timeout). When the paired
+    writer has left the graph and exactly one writer remains (a restarted
+    controller), the channel pairs with it, counted in ``re_pairings``.
+    Either way each new writer beyond the first raises an alarm.
     """
 
-    def __init__(self, rating_pu: float, deadline_ns: int):
+    def __init__(self, rating_pu: float, deadline_ns: int, verifier=None):
         self.stats = LoopStats()
         self.rating_pu = rating_pu
         self.deadline_ns = deadline_ns
+        self.verifier = verifier
         self.power_pu = 0.0
         self.max_abs_applied_power_pu = 0.0
         self.paired: tuple[bytes, str] | None = None
@@ -124,21 +141,29 @@ class CommandChannel:
             if gid not in self.foreign:
                 self.counts["writer_alarms"] += 1
             if self.foreign.get(gid) != name:  # new, or named now
-                self._event(True, f"foreign writer {name} ({gid.hex()}) on battery/command: commands dropped")
+                self._event(True, f"foreign writer {name} ({gid.hex()}) on battery/command: " + (
+                    "the run is flagged; only authenticated commands are applied" if self.verifier is not None
+                    else "commands dropped"))
         self.foreign = others
 
     def admit(self, stamp_ns: int, power_pu: float, arrival_ns: int,
-              awaited_ns: int | None = None) -> tuple[Verdict, float | None]:
+              awaited_ns: int | None = None, seal: bytes | None = None) -> tuple[Verdict, float | None]:
         """Decide on a command answering ``stamp_ns``: the verdict and the power to put in force (None: nothing).
 
+        ``seal``: the command's authentication (checked first, with a verifier).
         ``awaited_ns``: lockstep, the one stamp whose answer is due; None
         (realtime): any unanswered measurement within the deadline. A stand-down
-        (the paired controller's zero on stale data, answering no measurement)
+        (the controller's zero on stale data, answering no measurement)
         is zero in realtime; lockstep waits for the sample's own answer.
         """
+        if self.verifier is not None:
+            check = self.verifier.check(seal, stamp_ns, power_pu)
+            if check != command_auth.AUTHENTIC:
+                return self._drop(Verdict.REPLAYED if check == command_auth.REPLAYED else Verdict.UNAUTHENTICATED,
+                                  stamp_ns, power_pu)
         if not math.isfinite(power_pu) or abs(power_pu) > MAX_PLAUSIBLE_POWER_PU:
             return self._drop(Verdict.INVALID)
-        if self.foreign or self.paired is None:
+        if self.verifier is None and (self.foreign or self.paired is None):
             return self._drop(Verdict.FOREIGN, stamp_ns, power_pu)
         if self.stats.sent_wall_ns(stamp_ns) is None:
             if power_pu != 0.0:
@@ -163,16 +188,16 @@ class CommandChannel:
         self.max_abs_applied_power_pu = max(self.max_abs_applied_power_pu, abs(power_pu))
 
     def _drop(self, verdict: Verdict, stamp_ns: int = 0, power_pu: float = 0.0) -> tuple[Verdict, None]:
-        """Count a dropped command; the first foreign or unsolicited one is an alarm (later ones: the counters)."""
+        """Count a dropped command; the first one of a compromising kind is an alarm (later ones: the counters)."""
         self.counts[verdict.value] += 1
-        if verdict in (Verdict.FOREIGN, Verdict.UNSOLICITED) and self.counts[verdict.value] == 1:
+        if verdict.value in COMPROMISING_KEYS and self.counts[verdict.value] == 1:
             self._event(True, f"{verdict.name.lower()} command dropped (stamp {stamp_ns} ns, {power_pu!r} pu)")
         return verdict, None
 
     @property
     def compromised(self) -> bool:
-        """A command from someone else than the paired controller, or a second writer, was seen."""
-        return self.counts["foreign_commands"] + self.counts["unsolicited_commands"] + self.counts["writer_alarms"] > 0
+        """A command from someone else than the controller, or a second writer, was seen."""
+        return any(self.counts[key] for key in COMPROMISING_KEYS)
 
     def health(self, started: bool, waiting_for: str) -> tuple[str, str]:
         """``(level, message)`` of the plant's status: level a DiagnosticStatus constant's name."""
@@ -183,7 +208,8 @@ class CommandChannel:
     def summary(self) -> dict:
         """Counters, timing and the largest applied power, for diagnostics."""
         return {**self.stats.summary(), **self.counts, "max_abs_applied_power_pu": self.max_abs_applied_power_pu,
-                "paired_controller": "" if self.paired is None else self.paired[1]}
+                "paired_controller": "" if self.paired is None else self.paired[1],
+                "command_authentication": "none" if self.verifier is None else command_auth.SCHEME}
 
 
 class Report(NamedTuple):
@@ -344,9 +370,10 @@ class RealtimeReporter(_Loop):
         self.advance_to(self._elapsed_s(now_ns))
         return output
 
-    def command(self, index: int, stamp_ns: int, power_pu: float,
-                arrival_ns: int) -> tuple[Verdict | None, Output | None]:
-        """A command for channel ``index``: its verdict (None once the run is over), and an instant found unreported.
+    def command(self, index: int, stamp_ns: int, power_pu: float, arrival_ns: int,
+                seal: bytes | None = None) -> tuple[Verdict | None, Output | None]:
+        """A command for channel ``index`` (``seal``: its authentication): its verdict (None once the run is over),
+        and an instant found unreported.
 
         An instant whose tick is late is reported first, with the powers in force at it.
         """
@@ -354,7 +381,7 @@ class RealtimeReporter(_Loop):
         if self.done:
             return None, output
         channel = self.channels[index]
-        verdict, power = channel.admit(stamp_ns, power_pu, arrival_ns)
+        verdict, power = channel.admit(stamp_ns, power_pu, arrival_ns, seal=seal)
         if power is not None:
             self.advance_to(self._elapsed_s(arrival_ns))
             if verdict is Verdict.APPLIED:
@@ -421,13 +448,14 @@ class LockstepStepper(_Loop):
                 channel.stats.turnaround.add(wall_ns - self._arrival_ns)
         self._arrival_ns = None
 
-    def command(self, index: int, stamp_ns: int, power_pu: float,
-                arrival_ns: int) -> tuple[Verdict | None, Output | None]:
-        """A command for channel ``index``; the sample it completes, if it was the last answer awaited."""
+    def command(self, index: int, stamp_ns: int, power_pu: float, arrival_ns: int,
+                seal: bytes | None = None) -> tuple[Verdict | None, Output | None]:
+        """A command for channel ``index`` (``seal``: its authentication); the sample it completes, if it was the
+        last answer awaited."""
         if self.done or self.awaited_ns is None:
             return None, None
         channel = self.channels[index]
-        verdict, power = channel.admit(stamp_ns, power_pu, arrival_ns, self.awaited_ns)
+        verdict, power = channel.admit(stamp_ns, power_pu, arrival_ns, self.awaited_ns, seal)
         if power is not None:
             self.line.send(index, self.sample, self.t_s, power, self.t_s)
             self._answered.add(index)
@@ -502,11 +530,15 @@ class SubscriberWait:
         self._all_there_ns: int | None = None
         self.text = ""
 
-    def poll(self, now_ns: int, readers: int, writers: int, reader_topic: str, writer_topic: str):
+    def poll(self, now_ns: int, readers: int, writers: int, reader_topic: str, writer_topic: str,
+             released: bool = True):
+        """``released``: False while the plant holds its run for a release (``hold_until_released``)."""
         missing = [f"{self.wanted_readers} subscriber(s) on {reader_topic} (has {readers})"] \
             if readers < self.wanted_readers else []
         if self.wanted_readers > 0 and writers < 1:
             missing.append(f"a controller publishing on {writer_topic} (has none)")
+        if not released:
+            missing.append("the release (SIGUSR1, hold_until_released)")
         if not missing:
             self._all_there_ns = self._all_there_ns or now_ns
             return ("start" if (now_ns - self._all_there_ns) * 1e-9 >= self.settle_s else "wait"), None, None

@@ -65,15 +65,20 @@ class StampedBytes:
 
     :meth:`pack` writes ``stamp_ns`` as (sec int32, nanosec uint32, as
     :func:`nni_msgs_adapter.ros.contract.time_from_ns` splits it) and the values,
-    in order, into the buffer, and returns its bytes.
+    in order, into the buffer, and returns its bytes. A layout with a text slot
+    (``text``: its offset and length, a fixed-length tail of a string) takes
+    the slot's bytes as its last value.
     """
 
-    def __init__(self, writer: _Writer, stamp_offset: int, groups: list[tuple[int, struct.Struct]]):
+    def __init__(self, writer: _Writer, stamp_offset: int, groups: list[tuple[int, struct.Struct]],
+                 text: tuple[int, int] | None = None):
         self._buffer, self._stamp_offset, self._groups = writer.out, stamp_offset, tuple(groups)
-        self.count = sum(group.size // 8 for _, group in self._groups)
-        # What :meth:`unpack` compares: every byte but the stamp's and the values', as (start, stop, bytes).
+        self._text = text
+        self.count = sum(group.size // 8 for _, group in self._groups) + (text is not None)
+        # What :meth:`unpack` compares: every byte but the stamp's, the values' and the text's, as (start, stop, bytes).
         slots = sorted([(stamp_offset, stamp_offset + _STAMP.size)]
-                       + [(offset, offset + group.size) for offset, group in self._groups])
+                       + [(offset, offset + group.size) for offset, group in self._groups]
+                       + ([(text[0], text[0] + text[1])] if text else []))
         edges = [0, *(edge for slot in slots for edge in slot), len(self._buffer)]
         template = bytes(self._buffer)
         self._fixed = tuple((start, stop, template[start:stop]) for start, stop in zip(edges[::2], edges[1::2])
@@ -88,6 +93,11 @@ class StampedBytes:
             stop = start + group.size // 8
             group.pack_into(buffer, offset, *values[start:stop])
             start = stop
+        if self._text is not None:
+            offset, length = self._text
+            if len(values[-1]) != length:
+                raise ValueError(f"the text slot takes {length} bytes, got {len(values[-1])}")
+            buffer[offset:offset + length] = values[-1]
         return bytes(buffer)
 
     def unpack(self, data: bytes) -> tuple[int, tuple] | None:
@@ -102,14 +112,23 @@ class StampedBytes:
         values = ()
         for offset, group in self._groups:
             values += group.unpack_from(data, offset)
+        if self._text is not None:
+            offset, length = self._text
+            values += (bytes(data[offset:offset + length]),)
         return sec * 1_000_000_000 + nanosec, values
 
 
-def joint_state(frame_id: str, names: Sequence[str], counts: tuple[int, int, int]) -> StampedBytes:
-    """sensor_msgs/JointState with ``frame_id``, ``names`` and (position, velocity, effort) of ``counts`` values."""
+def joint_state(frame_id: str, names: Sequence[str], counts: tuple[int, int, int],
+                frame_tail: int = 0) -> StampedBytes:
+    """sensor_msgs/JointState with ``frame_id``, ``names`` and (position, velocity, effort) of ``counts`` values.
+
+    ``frame_tail``: the frame_id goes on for this many more bytes (ASCII, no NUL), a text slot that
+    :meth:`StampedBytes.pack` fills in last.
+    """
     writer = _Writer()
     stamp_offset = writer.reserve(_STAMP.size, 4)  # std_msgs/Header: stamp (sec, nanosec), frame_id
-    writer.string(frame_id)
+    writer.string(frame_id + "0" * frame_tail)
+    text = (len(writer.out) - 1 - frame_tail, frame_tail) if frame_tail else None  # before the string's NUL
     writer.uint32(len(names))
     for name in names:
         writer.string(name)
@@ -119,7 +138,7 @@ def joint_state(frame_id: str, names: Sequence[str], counts: tuple[int, int, int
         if count:
             group = struct.Struct(f"<{count}d")
             groups.append((writer.reserve(group.size, 8), group))
-    return StampedBytes(writer, stamp_offset, groups)
+    return StampedBytes(writer, stamp_offset, groups, text)
 
 
 def clock() -> StampedBytes:

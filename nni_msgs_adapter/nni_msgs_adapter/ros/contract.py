@@ -17,6 +17,11 @@ Mapping (see README, "Topics"):
   A controller reads it instead of ``pmu`` with ``measurement_topic``.
 * ``battery/command`` sensor_msgs/JointState, joint "battery": effort = battery
   power change P_ST (pu). Stamp = stamp of the measurement it answers.
+  header.frame_id = ``battery|hmac-sha256|<sequence>|<MAC>`` from a controller
+  with a key (:mod:`.command_auth`: the sequence number in 16 hex digits, the
+  HMAC-SHA256 of the tag, the topic, the sequence, the stamp and the power in
+  64; 101 characters in all, so that the bytes keep one layout), ``battery``
+  from one without (the plant's ``command_authentication none``).
 * ``plant/state`` sensor_msgs/JointState, joint "rotor": true delta, speed
   deviation, and effort = battery power P_ST acting on the rotor (pu), at each
   reporting instant (noise-free, for analysis).
@@ -51,7 +56,7 @@ from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 
-from nni_msgs_adapter.ros import cdr
+from nni_msgs_adapter.ros import cdr, command_auth
 
 TOPIC_PMU = "pmu"
 TOPIC_C37118_PMU = "c37118/pmu"
@@ -67,6 +72,8 @@ ROTOR_JOINT = "rotor"
 BATTERY_JOINT = "battery"
 #: header.frame_id of the rotor's messages (pmu, plant/state), the command and the controller's state.
 ROTOR_FRAME, BATTERY_FRAME, CONTROLLER_FRAME = "generator", "battery", "controller"
+#: header.frame_id of an authenticated command: this, then its seal (:mod:`.command_auth`, fixed length).
+SEALED_BATTERY_FRAME = f"{BATTERY_FRAME}|{command_auth.SCHEME}|"
 CONTROLLER_SIGNALS = ("angle_dev", "x3", "w", "battery_power", "saturated", "w_hat", "battery_limit")
 
 #: History depth of every per-sample stream, at the writers and at the subscribers that
@@ -227,18 +234,20 @@ def pmu_from_message(msg: JointState) -> tuple[int, float, float]:
     return ns_from_time(msg.header.stamp), msg.position[0], msg.velocity[0]
 
 
-def command_message(stamp_ns: int, battery_power_pu: float) -> JointState:
-    """A battery power command; ``stamp_ns`` is the answered measurement's stamp."""
+def command_message(stamp_ns: int, battery_power_pu: float, seal: bytes | None = None) -> JointState:
+    """A battery power command; ``stamp_ns`` is the answered measurement's stamp, ``seal`` its authentication."""
     msg = JointState()
     msg.header.stamp = time_from_ns(stamp_ns)
-    msg.header.frame_id = BATTERY_FRAME
+    msg.header.frame_id = BATTERY_FRAME if seal is None else SEALED_BATTERY_FRAME + seal.decode()
     msg.name = [BATTERY_JOINT]
     msg.effort = [float(battery_power_pu)]
     return msg
 
 
-def command_bytes() -> cdr.StampedBytes:
-    """The bytes of :func:`command_message`: ``pack(stamp_ns, battery_power_pu)``."""
+def command_bytes(sealed: bool = False) -> cdr.StampedBytes:
+    """The bytes of :func:`command_message`: ``pack(stamp_ns, battery_power_pu)``, ``sealed``: and the seal."""
+    if sealed:
+        return cdr.joint_state(SEALED_BATTERY_FRAME, (BATTERY_JOINT,), (0, 0, 1), command_auth.SEAL_LENGTH)
     return cdr.joint_state(BATTERY_FRAME, (BATTERY_JOINT,), (0, 0, 1))
 
 
@@ -249,8 +258,15 @@ def command_from_message(msg: JointState) -> tuple[int, float]:
     return ns_from_time(msg.header.stamp), msg.effort[0]
 
 
+def command_seal(msg: JointState) -> bytes | None:
+    """The seal a command carries in its frame_id (checked by :class:`.command_auth.CommandVerifier`), None if none."""
+    frame = msg.header.frame_id
+    return frame[len(SEALED_BATTERY_FRAME):].encode() if frame.startswith(SEALED_BATTERY_FRAME) else None
+
+
 #: The layouts the loop's nodes publish, to read back without building a message (:meth:`cdr.StampedBytes.unpack`).
-_ROTOR_LAYOUT, _COMMAND_LAYOUT, _CLOCK_LAYOUT = rotor_bytes(), command_bytes(), cdr.clock()
+_ROTOR_LAYOUT, _COMMAND_LAYOUT, _SEALED_LAYOUT = rotor_bytes(), command_bytes(), command_bytes(sealed=True)
+_CLOCK_LAYOUT = cdr.clock()
 
 
 def _deserialised(data: bytes, msg_class):
@@ -275,15 +291,21 @@ def pmu_from_bytes(data: bytes) -> tuple[tuple[int, float, float], tuple]:
     return pmu_from_message(msg), tuple(msg.effort)
 
 
-def command_from_bytes(data: bytes) -> tuple[int, float]:
-    """:func:`command_from_message` of a command received as bytes; ContractError if malformed.
+def command_from_bytes(data: bytes) -> tuple[int, float, bytes | None]:
+    """``(answered stamp_ns, battery power pu, seal or None)`` of a command received as bytes; ContractError if
+    malformed.
 
-    As :func:`pmu_from_bytes`: the controller's layout (:func:`command_bytes`) in place, else rclpy.
+    As :func:`pmu_from_bytes`: the controller's layouts (:func:`command_bytes`, sealed or not) in place,
+    else rclpy (:func:`command_from_message`, :func:`command_seal`).
     """
+    fast = _SEALED_LAYOUT.unpack(data)
+    if fast is not None:
+        return fast[0], *fast[1]
     fast = _COMMAND_LAYOUT.unpack(data)
     if fast is not None:
-        return fast[0], fast[1][0]
-    return command_from_message(_deserialised(data, JointState))
+        return fast[0], fast[1][0], None
+    msg = _deserialised(data, JointState)
+    return *command_from_message(msg), command_seal(msg)
 
 
 def clock_from_bytes(data: bytes) -> int:
@@ -306,6 +328,7 @@ def warm_up() -> None:
     """
     pmu_from_message(pmu_message(0, 0.0, 0.0, 0.0)), command_from_message(command_message(0, 0.0))
     pmu_from_bytes(_ROTOR_LAYOUT.pack(0, 0.0, 0.0, 0.0)), command_from_bytes(_COMMAND_LAYOUT.pack(0, 0.0))
+    command_from_bytes(_SEALED_LAYOUT.pack(0, 0.0, b"0" * command_auth.SEAL_LENGTH))
     clock_from_bytes(_CLOCK_LAYOUT.pack(0))
 
 

@@ -1,8 +1,9 @@
 """What the loop's nodes (the plants and the controller) do alike in ROS.
 
-:class:`LoopNode`: its parameter table declared and checked at start, each
-later change validated on set and applied after it
-(:func:`.ros_params.install_validation`); its status on ``/diagnostics`` every
+:class:`LoopNode`: its parameter table declared and checked at start, locked
+from then on unless ``allow_tuning`` (then each change validated on set and
+applied after it: :func:`.ros_params.install_validation`), and stated for the
+read-back (:meth:`LoopNode.effective_parameters`); its status on ``/diagnostics`` every
 second and once more at close; the first messages' cost paid before the first
 sample (:func:`.contract.warm_up`). :class:`StampedPublisher`: a per-sample
 topic published as its exact bytes (:mod:`.cdr`).
@@ -13,14 +14,17 @@ from __future__ import annotations
 from rclpy.node import Node
 
 from nni_msgs_adapter.ros import contract
-from nni_msgs_adapter.ros.ros_params import declared_values, install_validation
+from nni_msgs_adapter.ros.ros_params import declared_values, effective_values, install_validation
 
 
 class StampedPublisher:
-    """A per-sample topic's publisher (under ``namespace`` if given): ``publish(stamp_ns, *values)`` sends its bytes."""
+    """A per-sample topic's publisher (under ``namespace`` if given): ``publish(stamp_ns, *values)`` sends its bytes.
 
-    def __init__(self, node: Node, topic: str, namespace: str = ""):
-        self.layout = contract.layout(topic)
+    ``layout``: its bytes (default: the topic's, :func:`.contract.layout`).
+    """
+
+    def __init__(self, node: Node, topic: str, namespace: str = "", layout=None):
+        self.layout = layout or contract.layout(topic)
         self.publisher = node.create_publisher(*contract.endpoint(topic, namespace))
 
     def publish(self, stamp_ns: int, *values) -> None:
@@ -38,11 +42,16 @@ class LoopNode(Node):
     def __init__(self, name: str, specs, **kwargs):
         super().__init__(name, **kwargs)
         self._clock = self.get_clock()
+        self.specs = specs
         self.initial_values = declared_values(self, specs)
-        install_validation(self, specs, self._validate, self._install)
+        install_validation(self, specs, self._validate, self._install, self.initial_values["allow_tuning"])
         self._diagnostics = self.create_publisher(*contract.endpoint(contract.TOPIC_DIAGNOSTICS))
         contract.warm_up()
         self.diagnostics_timer = self.create_timer(1.0, self.publish_diagnostics)
+
+    def effective_parameters(self) -> dict:
+        """What the node runs with (node_main prints it at start, for the read-back)."""
+        return effective_values(self, self.specs)
 
     def now_ns(self) -> int:
         """The node's ROS clock in integer ns (:func:`.contract.now_ns`)."""

@@ -8,7 +8,9 @@ its unsent samples with it; reliable writers heartbeat every 50 ms, see
 ``config/fastdds_profiles.xml``, so this takes milliseconds), and the process
 exits 0. rclpy's own handlers are not installed: they
 would invalidate the context before ``close()`` could publish. Invalid start-up
-parameters print one line naming the problem and exit 2.
+parameters print one line naming the problem and exit 2. Once made, each node
+that states its parameters (``effective_parameters``) has them printed as one
+line on stdout (:mod:`.readback`), before it spins.
 
 Before ROS starts:
 
@@ -63,6 +65,7 @@ from rclpy.utilities import remove_ros_args
 from nni_msgs_adapter.ros.cli_support import EXIT_USAGE
 from nni_msgs_adapter.ros.defaults import config_path
 from nni_msgs_adapter.ros.processes import PARTICIPANTS_ENV
+from nni_msgs_adapter.ros.readback import parameters_line
 
 #: Longest wait inside the executor, s: how soon a signal is noticed.
 _SIGNAL_POLL_S = 0.05
@@ -150,6 +153,9 @@ def run_node(factory, args=None, prog: str = "node") -> int:
     for warning in held:
         warnings.warn_explicit(warning.message, warning.category, warning.filename, warning.lineno)
     nodes = list(node) if isinstance(node, (list, tuple)) else [node]
+    for each in nodes:  # the read-back: what each node runs with, before anything spins (readback.py)
+        if hasattr(each, "effective_parameters"):
+            print(parameters_line(prog, each.get_fully_qualified_name(), each.effective_parameters()), flush=True)
     if own_profile is not None:
         nodes[0].get_logger().info(f"DDS profile from {FASTDDS_PROFILES_ENV}={own_profile}: the network the node "
                                    "listens on is as that file says (the loopback-only default is not applied)")

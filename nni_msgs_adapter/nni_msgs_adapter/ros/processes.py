@@ -45,11 +45,13 @@ def with_participants(env: dict, participants: int) -> dict:
 
 
 def parameter_text(value) -> str:
-    """A parameter value as ROS command-line YAML (.inf for inf, true/false for bools, strings quoted).
+    """A parameter value as ROS command-line YAML (.inf for inf, true/false for bools, strings quoted, lists of them).
 
     Strings are single-quoted so that YAML keeps them strings whatever they hold
     (a JSON object, "true", a number).
     """
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(parameter_text(item) for item in value) + "]"
     if isinstance(value, str):
         return "'" + value.replace("'", "''") + "'"
     if isinstance(value, bool):
@@ -148,14 +150,16 @@ class Supervisor:
         self.env, self.log_dir, self.cwd, self.grace_s = env, Path(log_dir), cwd, grace_s
         self.children: dict[str, Child] = {}
 
-    def start(self, name: str, cmd: list[str]) -> Child:
+    def start(self, name: str, cmd: list[str], env: dict | None = None) -> Child:
+        """Start ``cmd`` as child ``name``, with ``env`` added to the supervisor's environment."""
         self.log_dir.mkdir(parents=True, exist_ok=True)
-        child = Child(name, cmd, self.env, self.log_dir / f"{name}.log", self.cwd)
+        child = Child(name, cmd, {**self.env, **(env or {})}, self.log_dir / f"{name}.log", self.cwd)
         self.children[name] = child
         return child
 
-    def start_node(self, name: str, module: str, params: dict | None = None, ros_args: tuple = ()) -> Child:
-        return self.start(name, node_command(module, params, ros_args))
+    def start_node(self, name: str, module: str, params: dict | None = None, ros_args: tuple = (),
+                   env: dict | None = None) -> Child:
+        return self.start(name, node_command(module, params, ros_args), env)
 
     def __getitem__(self, name: str) -> Child:
         return self.children[name]

@@ -2,9 +2,16 @@
 
 Each parameter is declared once with its type, default, description (with unit)
 and range; the node's own validation (a dataclass constructor raising ValueError
-that names the violated condition) runs on start-up and on every runtime change,
-and an invalid change is rejected with that reason, the old values kept. While
-a run is active the safety-relevant parameters are locked (:func:`locked_changes`).
+that names the violated condition) runs on start-up.
+
+From the start, no parameter can be changed over the parameter services (by
+any process: limits, gains, model, reference, noise, link, and rclpy's own
+``use_sim_time``); reading them stays possible. A node started with
+``allow_tuning:=true`` (read-only: only at start) takes changes again: each one
+validated, an invalid one rejected with the reason and the old values kept,
+and while a run is active the safety-relevant parameters locked
+(:func:`locked_changes`). :func:`effective_values` are what a node states at
+start (``node_main`` prints them, the demo and the launch files compare).
 """
 
 from __future__ import annotations
@@ -42,6 +49,13 @@ class Spec:
             descriptor.floating_point_range = [FloatingPointRange(
                 from_value=float(self.low), to_value=float(self.high), step=0.0)]
         return descriptor
+
+
+def allow_tuning(default: bool) -> Spec:
+    """The switch that opens a node's parameters to changes over the services (its default from the node's YAML)."""
+    return Spec("allow_tuning", default, "Let other processes change parameters over the parameter services (each "
+                "change validated; during a run the controller's gains only, nothing of the plant). false: every "
+                "parameter, use_sim_time included, is locked from the start; reading stays possible.", read_only=True)
 
 
 def declare(node, specs) -> None:
@@ -91,19 +105,28 @@ def check_choices(values: dict, specs) -> None:
             raise ValueError(f"{spec.name} must be one of {', '.join(spec.choices)}, got {values[spec.name]!r}")
 
 
-def install_validation(node, specs, prepare, install) -> None:
-    """Validate every runtime change with ``prepare(new_values)``; apply it with ``install`` once it is set.
+def install_validation(node, specs, prepare, install, tunable: bool) -> None:
+    """Refuse every runtime change, or with ``tunable`` (``allow_tuning``) validate it with ``prepare(new_values)``
+    and apply it with ``install`` once it is set.
 
     ``prepare`` builds the node's configuration from the full value dict,
     raising ValueError (message = reason) to reject the change, and changes
     nothing; the on-set callback only calls it. rclpy's post-set callback then
     hands what it built to ``install``, so nothing is installed for a rejected
-    change and the old values stay.
+    change and the old values stay. Without ``tunable`` the request is refused
+    whole, whatever it names (``use_sim_time`` and any parameter not in ``specs``
+    too): rclpy calls this callback before its own (its TimeSource's), which
+    never see it.
     """
     names = {spec.name for spec in specs}
     prepared = []
 
     def on_set(parameters):
+        if not tunable:
+            reason = (f"{', '.join(sorted(p.name for p in parameters))} cannot change: the node's parameters are "
+                      "locked from the start (start it with allow_tuning:=true to tune them)")
+            node.get_logger().warning(f"rejected parameter change: {reason}")
+            return SetParametersResult(successful=False, reason=reason)
         proposed = current_values(node, specs)
         proposed.update({p.name: p.value for p in parameters if p.name in names})
         try:
@@ -120,6 +143,11 @@ def install_validation(node, specs, prepare, install) -> None:
 
     node.add_on_set_parameters_callback(on_set)
     node.add_post_set_parameters_callback(post_set)
+
+
+def effective_values(node, specs) -> dict:
+    """Every parameter a node runs with: its table's (:func:`current_values`) and rclpy's ``use_sim_time``."""
+    return {**current_values(node, specs), "use_sim_time": node.get_parameter("use_sim_time").value}
 
 
 def locked_changes(old: dict, new: dict, locked, when: str = "while a run is active (safety lockdown)") -> None:
