@@ -142,35 +142,44 @@ def test_bad_and_out_of_order_commands_are_counted_and_change_nothing(server):
 
 
 def test_a_pdc_that_never_reads_loses_frames_alone_and_never_slows_the_offers():
+    """Beside a stalled PDC the offers take what they take beside a reading one only: each offer is timed against
+    the same offer to a second server that has a reading PDC alone, alternately, so the machine's load cancels."""
     config = plant_config(52)
-    with PmuServer(config, HEADER, port=0, queue_frames=50) as server:
+    with PmuServer(config, HEADER, port=0, queue_frames=50) as server, PmuServer(config, HEADER, port=0) as baseline:
         stalled = socket.socket()
         stalled.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
         stalled.connect(server.address)
         stalled.sendall(command(c37.Command.DATA_ON))
-        received = []
+        received, baseline_received = [], []
         reader = PdcClient(*server.address, 7, received.extend)
+        baseline_reader = PdcClient(*baseline.address, 7, baseline_received.extend)
         reader.start()
-        wait_for(lambda: server.counters()["commands"].get("data_on") == 2)
+        baseline_reader.start()
+        wait_for(lambda: server.counters()["commands"].get("data_on") == 2
+                 and baseline.counters()["commands"].get("data_on") == 1)
         values = plant_values(52, 0)
-        offer_s, worst_queue = [], 0
+        offer_s, baseline_s, worst_queue = [], [], 0
         for k in range(1500):
-            start = time.perf_counter()
-            server.offer(EPOCH_NS + k * 1_000_000, values)
-            offer_s.append(time.perf_counter() - start)
+            for target, times in ((server, offer_s), (baseline, baseline_s)):
+                start = time.perf_counter()
+                target.offer(EPOCH_NS + k * 1_000_000, values)
+                times.append(time.perf_counter() - start)
             time.sleep(0.0005)
             if k % 50 == 0:
                 worst_queue = max(worst_queue, *(p["queued"] for p in server.counters()["pdcs"]))
-        wait_for(lambda: len(received) == 1500 * 52)
+        wait_for(lambda: len(received) == len(baseline_received) == 1500 * 52)
         reader.stop()
+        baseline_reader.stop()
         counters = server.counters()
         stalled_pdc = next(p for p in counters["pdcs"] if p["data_on"])
         stalled.close()
     assert stalled_pdc["frames_dropped"] > 1000 and stalled_pdc["queued"] <= 50 and worst_queue <= 50
     assert counters["frames_dropped"] == stalled_pdc["frames_dropped"]
     assert reader.counters()["rejected"] == {} and counters["handoff_dropped"] == 0
-    # The encoding of a 52-station frame is ~20 us; the hand-off adds a deque append and at most one send.
-    assert np.median(offer_s) < 200e-6 and np.percentile(offer_s, 99) < 5e-3
+    # The hand-off adds a deque append and at most one non-blocking send: never the wait of a blocking one.
+    assert np.median(offer_s) <= 2 * np.median(baseline_s) + 50e-6, (np.median(offer_s), np.median(baseline_s))
+    assert np.percentile(offer_s, 99) <= 2 * np.percentile(baseline_s, 99) + 1e-3
+    assert max(offer_s) < 0.5, "no offer waited on the stalled PDC"
 
 
 def _open_fds() -> int:

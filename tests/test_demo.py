@@ -179,8 +179,8 @@ def test_demo_waits_for_the_bridge_before_the_plant_starts():
 def test_through_c37118_the_plant_waits_for_the_logger_on_pmu_and_for_the_client_on_its_stream():
     """The controller reads c37118/pmu: the plant's pmu has the logger (and a bridge); the client turns data on."""
     args = parse_arguments(build_parser(), ["--measurements", "c37118"])
-    plant = plant_parameters(args, with_bridge=False)
-    assert plant["wait_for_subscribers"] == 1 and plant_parameters(args, with_bridge=True)["wait_for_subscribers"] == 2
+    plant = plant_parameters(args, 0.3, with_bridge=False)
+    assert plant["wait_for_subscribers"] == 1 and plant_parameters(args, 0.3, with_bridge=True)["wait_for_subscribers"] == 2
     assert plant["pmu_port"] == 0 and plant["pmu_host"] == "127.0.0.1" and plant["pmu_wait_for_pdcs"] == 1
     assert controller_parameters(args, 0.3)["measurement_topic"] == "c37118/pmu"
     assert recording_name(0.3, plant) == "paper_b0.3.mcap", "the stream is the run's set-up, not its case"

@@ -261,9 +261,9 @@ class PlantNodeBase(LoopNode):
             stamp_ns, power, seal = contract.command_from_bytes(data)
         except contract.ContractError:
             stamp_ns, power, seal = 0, math.nan, None  # malformed: invalid (unauthenticated), as a non-finite power
-        if self._stream is not None:
-            stamp_ns = self._stream.plant_stamp(stamp_ns)  # an answer to the stream's stamp, to the microsecond
-        self._publish(self._loop.command(index, stamp_ns, power, arrival_ns, seal)[1])
+        # An answer to the stream's stamp (to the microsecond) answers the plant's sample; the seal covers the first.
+        sample_ns = stamp_ns if self._stream is None else self._stream.plant_stamp(stamp_ns)
+        self._publish(self._loop.command(index, sample_ns, power, arrival_ns, seal, stamp_ns)[1])
         self._report_events(index)
 
     # --- diagnostics ---------------------------------------------------------------------

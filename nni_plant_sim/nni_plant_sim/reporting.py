@@ -146,18 +146,19 @@ class CommandChannel:
                     else "commands dropped"))
         self.foreign = others
 
-    def admit(self, stamp_ns: int, power_pu: float, arrival_ns: int,
-              awaited_ns: int | None = None, seal: bytes | None = None) -> tuple[Verdict, float | None]:
+    def admit(self, stamp_ns: int, power_pu: float, arrival_ns: int, awaited_ns: int | None = None,
+              seal: bytes | None = None, sealed_stamp_ns: int | None = None) -> tuple[Verdict, float | None]:
         """Decide on a command answering ``stamp_ns``: the verdict and the power to put in force (None: nothing).
 
-        ``seal``: the command's authentication (checked first, with a verifier).
+        ``seal``: the command's authentication (checked first, with a verifier), over the stamp the command
+        carried, ``sealed_stamp_ns`` where that is not ``stamp_ns`` (a C37.118 stamp mapped back to the sample's).
         ``awaited_ns``: lockstep, the one stamp whose answer is due; None
         (realtime): any unanswered measurement within the deadline. A stand-down
         (the controller's zero on stale data, answering no measurement)
         is zero in realtime; lockstep waits for the sample's own answer.
         """
         if self.verifier is not None:
-            check = self.verifier.check(seal, stamp_ns, power_pu)
+            check = self.verifier.check(seal, stamp_ns if sealed_stamp_ns is None else sealed_stamp_ns, power_pu)
             if check != command_auth.AUTHENTIC:
                 return self._drop(Verdict.REPLAYED if check == command_auth.REPLAYED else Verdict.UNAUTHENTICATED,
                                   stamp_ns, power_pu)
@@ -370,9 +371,10 @@ class RealtimeReporter(_Loop):
         self.advance_to(self._elapsed_s(now_ns))
         return output
 
-    def command(self, index: int, stamp_ns: int, power_pu: float, arrival_ns: int,
-                seal: bytes | None = None) -> tuple[Verdict | None, Output | None]:
-        """A command for channel ``index`` (``seal``: its authentication): its verdict (None once the run is over),
+    def command(self, index: int, stamp_ns: int, power_pu: float, arrival_ns: int, seal: bytes | None = None,
+                sealed_stamp_ns: int | None = None) -> tuple[Verdict | None, Output | None]:
+        """A command for channel ``index`` (``seal``: its authentication, over ``sealed_stamp_ns`` if given, as
+        :meth:`Channel.admit`): its verdict (None once the run is over),
         and an instant found unreported.
 
         An instant whose tick is late is reported first, with the powers in force at it.
@@ -381,7 +383,7 @@ class RealtimeReporter(_Loop):
         if self.done:
             return None, output
         channel = self.channels[index]
-        verdict, power = channel.admit(stamp_ns, power_pu, arrival_ns, seal=seal)
+        verdict, power = channel.admit(stamp_ns, power_pu, arrival_ns, seal=seal, sealed_stamp_ns=sealed_stamp_ns)
         if power is not None:
             self.advance_to(self._elapsed_s(arrival_ns))
             if verdict is Verdict.APPLIED:
@@ -448,14 +450,15 @@ class LockstepStepper(_Loop):
                 channel.stats.turnaround.add(wall_ns - self._arrival_ns)
         self._arrival_ns = None
 
-    def command(self, index: int, stamp_ns: int, power_pu: float, arrival_ns: int,
-                seal: bytes | None = None) -> tuple[Verdict | None, Output | None]:
-        """A command for channel ``index`` (``seal``: its authentication); the sample it completes, if it was the
+    def command(self, index: int, stamp_ns: int, power_pu: float, arrival_ns: int, seal: bytes | None = None,
+                sealed_stamp_ns: int | None = None) -> tuple[Verdict | None, Output | None]:
+        """A command for channel ``index`` (``seal``: its authentication, over ``sealed_stamp_ns`` if given, as
+        :meth:`Channel.admit`); the sample it completes, if it was the
         last answer awaited."""
         if self.done or self.awaited_ns is None:
             return None, None
         channel = self.channels[index]
-        verdict, power = channel.admit(stamp_ns, power_pu, arrival_ns, self.awaited_ns, seal)
+        verdict, power = channel.admit(stamp_ns, power_pu, arrival_ns, self.awaited_ns, seal, sealed_stamp_ns)
         if power is not None:
             self.line.send(index, self.sample, self.t_s, power, self.t_s)
             self._answered.add(index)

@@ -30,7 +30,7 @@ from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.defaults import load_defaults
 from nni_msgs_adapter.ros.loop_node import LoopNode, StampedPublisher
 from nni_msgs_adapter.ros.node_main import run_node
-from nni_msgs_adapter.ros.ros_params import Spec, locked_changes
+from nni_msgs_adapter.ros.ros_params import Spec, allow_tuning, locked_changes
 
 #: How often, s, the node checks its subscribers before it connects, and logs the stream's events.
 _POLL_S = 0.05
@@ -62,6 +62,7 @@ def parameters() -> tuple[Spec, ...]:
              "this many subscribers; 0: at once.", 0, 100),
         Spec("discovery_settle_s", values["discovery_settle_s"], "Then wait this long for the rest of discovery, s.",
              0.0, 10.0),
+        allow_tuning(values["allow_tuning"]),
     )
 
 
