@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from bench.c37118_loop import c37118_loop_section
+from bench.c37118_server import c37118_server_section
 from bench.latency import latency_section, share_section
 from bench.lockstep import lockstep_section
 from bench.machine import machine_section
@@ -15,7 +16,7 @@ from bench.roa import roa_section
 SECTIONS = (("latency", latency_section), ("controller-share", share_section), ("lockstep", lockstep_section),
             ("roa", roa_section), ("network-lockstep", network_lockstep_section),
             ("network-realtime", network_realtime_section), ("network-profile", network_profile_section),
-            ("c37118-loop", c37118_loop_section))
+            ("c37118-loop", c37118_loop_section), ("c37118-server", c37118_server_section))
 
 
 def report(command: str, machine: dict, quick: bool, results: dict, started: str, wall_s: float) -> str:
