@@ -8,8 +8,10 @@
 * Our client core reads a realtime Kundur recording (4 generators, 30
   frames/s at 60 Hz, one sample missing for one generator): a station per
   namespace named as the network plant names it, the recorded wall-clock
-  instants, angles, FREQ from the recorded speed and the P_E analog as
-  recorded; the missing sample is "do not use" in STAT for that station alone.
+  instants, angles, FREQ from the recorded speed, the P_E and P_ST analogs as
+  recorded, terminal V/I from the recorded true angles and scenario; the
+  missing sample is "do not use" in STAT for that station alone. Without the
+  fault's instant (a service call's) the terminal phasors are left out.
 * What cannot be streamed, and options that do not go with ``--pmu-server``,
   are refused in one line, exit 2.
 """
@@ -30,11 +32,19 @@ import numpy as np
 import pytest
 
 import c37118_cases  # noqa: F401  (pyc37 needs collections.abc loaded first)
+from nni_battery_controller.network_deployment import plant_parameters
 from nni_msgs_adapter.c37118.client import PdcClient
 from nni_msgs_adapter.c37118.profile import LOCKSTEP_EPOCH_NS
 from nni_msgs_adapter.recording.mcap_io import Ros2McapWriter, qos_profiles_yaml, read_recording
-from nni_msgs_adapter.recording.runs import RUN_METADATA_NAME
+from nni_msgs_adapter.recording.replay_c37118 import RecordedStream
+from nni_msgs_adapter.recording.runs import RUN_METADATA_NAME, run_metadata
 from nni_msgs_adapter.ros import contract
+from nni_plant_sim.cases import load_network
+from nni_plant_sim.network_plant_config import parameters as network_parameters
+from nni_plant_sim.network_plant_config import scenario_from as network_scenario_from
+from nni_plant_sim.network_scenarios import AngleDisplacement
+from nni_plant_sim.phasors import terminal_phasors
+from nni_plant_sim.scenarios import StartingAt
 from pyc37.frame import DataFrame as PyData
 from pyc37.pdc import Pdc
 from rclpy.serialization import serialize_message
@@ -45,6 +55,8 @@ LISTENING = "  C37.118 stream listening on "
 REALTIME_START_NS = 1_796_000_000 * 1_000_000_000
 KUNDUR_PERIOD_NS = round(1e9 / 30)
 FLOAT32 = 4e-7
+#: A bus fault at bus 7 cleared after 0.1 s, as nni-demo --case records it (network_deployment.scenario_parameters).
+BUS_FAULT = {"scenario": "bus_fault", "fault_bus": 7, "fault_r": 0.0, "fault_x": 0.0, "clearing_time": 0.1}
 
 
 def start_replay(*args) -> tuple[subprocess.Popen, int, list]:
@@ -127,14 +139,17 @@ def test_pyc37_reads_a_shipped_recording_at_its_rate_with_its_rotor_angles():
 
 
 def write_kundur(path: Path, samples: int, *, rate_hz: float = 30.0, f0: float | None = None,
-                 missing: tuple = (), metadata: bool = True) -> None:
-    """A realtime Kundur run's pmu and plant states (4 generators), wall-clock stamps, ``missing`` (ns, k) left out."""
+                 missing: tuple = (), metadata: bool = True, fault_at_start: bool = True) -> None:
+    """A realtime Kundur run's pmu and plant states (4 generators), wall-clock stamps, ``missing`` (ns, k) left out;
+    its run parameters as nni-demo --case records them (``network_plant``), or without the case and with
+    ``f0`` as a SMIB's (``plant``)."""
     with Ros2McapWriter(path, flush_period_s=3600.0) as writer:
-        if metadata:
-            plant = {"mode": "realtime", "pmu_rate_hz": rate_hz, "scenario": "bus_fault", "fault_at_start": True}
-            run = {"case": "kundur_two_area", "mode": "realtime", "rate_hz": rate_hz, "plant": plant}
+        if metadata:  # what nni-demo --case records: the parameters it sets (the node's defaults for the rest)
+            plant = plant_parameters("kundur_two_area", BUS_FAULT, "realtime", rate_hz, samples / rate_hz)
+            plant.update({} if fault_at_start else {"fault_at_start": False})  # as a logger started by hand
+            run = {"case": "kundur_two_area", "mode": "realtime", "rate_hz": rate_hz, "network_plant": plant}
             if f0 is not None:
-                run = {"mode": "realtime", "rate_hz": rate_hz, "plant": {**plant, "f0_hz": f0}}
+                run = {"mode": "realtime", "rate_hz": rate_hz, "plant": {"f0_hz": f0}}
             writer.add_metadata(RUN_METADATA_NAME, {key: json.dumps(value) for key, value in run.items()})
         channels = {}
         for i in range(1, 5):
@@ -146,17 +161,22 @@ def write_kundur(path: Path, samples: int, *, rate_hz: float = 30.0, f0: float |
             for i in range(1, 5):
                 if (i, k) in missing:
                     continue
-                delta, speed = 0.3 * i + 0.05 * k, 0.1 * math.sin(0.2 * k + i)
+                delta, speed = true_angle(i, k) + 0.001, 0.1 * math.sin(0.2 * k + i)  # measured: off the true
                 writer.write(channels[i, contract.TOPIC_PMU],
                              serialize_message(contract.pmu_message(stamp, delta, speed, 0.7 + 0.01 * i)), stamp, stamp)
                 writer.write(channels[i, contract.TOPIC_PLANT_STATE],
-                             serialize_message(contract.plant_state_message(stamp, delta, speed, -0.02 * i)),
+                             serialize_message(contract.plant_state_message(stamp, true_angle(i, k), speed, -0.02 * i)),
                              stamp, stamp)
 
 
-def test_our_client_reads_a_realtime_network_recording_a_station_per_generator(tmp_path):
+def true_angle(i: int, k: int) -> float:
+    return 0.3 * i + 0.05 * k
+
+
+def kundur_stream(tmp_path, **write) -> tuple[str, list, dict, PdcClient]:
+    """nni-replay's output, what our client read and the recording's pmu samples of a Kundur recording."""
     path = tmp_path / "kundur.mcap"
-    write_kundur(path, 60, missing={(3, 10)})
+    write_kundur(path, 60, **write)
     samples, lock = [], threading.Lock()
 
     def take(batch):
@@ -173,21 +193,50 @@ def test_our_client_reads_a_realtime_network_recording_a_station_per_generator(t
         if replay.poll() is None:
             replay.kill()
             replay.wait()
+    return out, samples, recorded_pmu(path), client
+
+
+def test_our_client_reads_a_realtime_network_recording_a_station_per_generator(tmp_path):
+    out, samples, recorded, client = kundur_stream(tmp_path, missing={(3, 10)})
     assert "60 samples of 4 station(s) at 30 frames/s (realtime), C37.118 IDCODE 9" in out
-    recorded = recorded_pmu(path)
     config = client.session.config
     assert [station.name for station in config.stations] == [f"gen{i} G{i} bus {i}" for i in range(1, 5)]
-    assert config.data_rate == 30 and [len(s.phasors) for s in config.stations] == [1] * 4  # no terminal V/I
-    assert len(samples) == 4 * 60 - 1 and client.counters()["rejected"] == {"invalid_data": 1}
+    assert config.data_rate == 30 and [len(s.phasors) for s in config.stations] == [3] * 4
+    # Without gen3's angle at sample 10 no machine's terminal current is known there: all four "do not use".
+    assert len(samples) == 4 * 59 and client.counters()["rejected"] == {"invalid_data": 4}
+    net = load_network("kundur_two_area")
+    fault = StartingAt(network_scenario_from(net, {**{spec.name: spec.default for spec in network_parameters()},
+                                                   **BUS_FAULT}), 0.0, AngleDisplacement(np.zeros(4)))
     for sample in samples:
         namespace = f"/gen{sample.station + 1}"
         stamp = next(s for s in recorded[namespace] if abs(s - sample.instant_ns) <= 500)  # to the microsecond
         delta, speed, p_elec = recorded[namespace][stamp]
         assert abs(wrapped(sample.reading.angles_rad[0] - delta)) <= FLOAT32
         assert sample.reading.frequency_hz == pytest.approx(60.0 + speed / (2 * math.pi), abs=1e-3)  # mHz steps
-        assert sample.reading.analogs[0] == pytest.approx(p_elec, rel=1e-6)
+        assert sample.reading.analogs == pytest.approx((p_elec, -0.02 * (sample.station + 1)), rel=1e-6)
+        # V_t as the network plant computes it, at the true angles, with the bus fault on until 0.1 s.
+        k = round((stamp - 137 - REALTIME_START_NS) / KUNDUR_PERIOD_NS)
+        true = np.array([true_angle(i, k) for i in range(1, 5)])
+        _, _, voltage = terminal_phasors(net, fault.network(k / 30, net)[1], true)
+        assert sample.reading.magnitudes[1] == pytest.approx(abs(voltage[sample.station]), rel=1e-6), k
+        assert abs(wrapped(sample.reading.angles_rad[1] - np.angle(voltage[sample.station]))) <= FLOAT32
+    invalid_at = REALTIME_START_NS + 10 * KUNDUR_PERIOD_NS + 137
+    assert not any(abs(s.instant_ns - invalid_at) <= 500 for s in samples)
+
+
+def test_a_recording_without_the_fault_s_instant_leaves_the_terminal_phasors_out_and_says_why(tmp_path):
+    out, samples, recorded, client = kundur_stream(tmp_path, fault_at_start=False, missing={(3, 10)})
+    assert [len(s.phasors) for s in client.session.config.stations] == [1] * 4
+    assert all(len(sample.reading.angles_rad) == 1 for sample in samples)
+    # EMF only: the sample gen3 lacks is "do not use" for gen3 alone.
+    assert len(samples) == 4 * 60 - 1 and client.counters()["rejected"] == {"invalid_data": 1}
     invalid_at = REALTIME_START_NS + 10 * KUNDUR_PERIOD_NS + 137
     assert not any(s.station == 2 and abs(s.instant_ns - invalid_at) <= 500 for s in samples)
+    assert "turned data on" in out
+    recording = read_recording(tmp_path / "kundur.mcap")
+    header = RecordedStream(recording, run_metadata(recording)).header("kundur.mcap")
+    assert "Left out: terminal V/I (the run's disturbance started at a service call, whose instant the recording " \
+           "does not hold)" in header
 
 
 @pytest.mark.parametrize("write, args, message", [

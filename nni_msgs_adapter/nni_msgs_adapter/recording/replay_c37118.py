@@ -12,11 +12,17 @@ messages in it: the EMF's angle the recorded rotor angle (as the plant's
 the recorded electrical power, the ``P_ST`` analog the battery power of the
 recorded ``plant/state`` at the same stamp; DFREQ is the recorded speed's
 rate of change (its central differences) over 2 pi. The EMF's magnitude is
-the case's E' (1 pu for the SMIB). Terminal voltage and current are left
-out: a recording holds the rotor angles, not the network in force at each
-sample (a fault's, a trip's), and the header frame says so. A generator
-without a sample at an instant the others have is sent as "do not use"
-(STAT) there.
+the case's E' (1 pu for the SMIB). A network's terminal voltage and current
+are there when the recording gives what the plant computed them from: the
+case (``case``), its scenario in the plant's parameters (``network_plant``,
+the node's defaults for what it leaves out: :func:`recorded_plant_values`)
+applied from t = 0 (``fault_at_start``), and every generator's true angle
+(``plant/state``) at the sample (:func:`nni_plant_sim.phasors.terminal_phasors`,
+the network plant's own); otherwise (the SMIB, a fault started by a service
+call at an instant not recorded, parameters that give no scenario) they are
+left out and the header frame says why. A generator without a sample at an
+instant the others have is sent as "do not use" (STAT) there, and with
+terminal phasors so is every generator (their currents need every angle).
 
 Time: each frame carries its sample's stamp, as the plant's stream did
 (lockstep: the simulated clock from the profile's epoch; realtime: the
@@ -49,12 +55,15 @@ from nni_msgs_adapter.recording.replay_load import PROG, load, readable_runs
 from nni_msgs_adapter.recording.runs import run_metadata, split_topic
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.cli_support import CliError
-from nni_plant_sim import scenarios
+from nni_plant_sim import network_plant_config, plant_config, scenarios
+from nni_plant_sim.scenarios import StartingAt
 from nni_plant_sim.cases import load_network
-from nni_plant_sim.network_plant_config import scenario_from
-from nni_plant_sim.phasors import frequency_hz
+from nni_plant_sim.network_scenarios import AngleDisplacement
+from nni_plant_sim.phasors import frequency_hz, terminal_phasors
 from nni_plant_sim.pmu_stream import SMIB_STATION, PlantStream, network_station_names, station_values
 
+#: Where the run parameters (``nni_run``) hold the plant's: the SMIB demo's and the network demo's.
+SMIB_PLANT_KEY, NETWORK_PLANT_KEY = "plant", "network_plant"
 #: FREQ/DFREQ as integers: what every PDC reads (the plants' default).
 FREQ_FORMAT = "integer"
 #: Seconds the stream gets after its last frame to hand every PDC what it queued.
@@ -94,67 +103,108 @@ class RecordedStream:
         if not samples:
             raise CliError(f"{path}: no {contract.TOPIC_PMU} messages: nothing to stream")
         self.namespaces = sorted(samples, key=namespace_order)
-        plant = parameters.get("plant") if isinstance(parameters.get("plant"), dict) else {}
         case = _case(path, parameters)
+        plant = recorded_plant_values(parameters, case)
+        self.fault_at_start = bool(plant["fault_at_start"])
+        self.net, self.scenario, self.terminal_missing = None, None, "a SMIB has no terminal bus model"
         if case is not None:
-            net = load_network(case)
+            self.net = net = load_network(case)
             if len(self.namespaces) != net.size:
                 raise CliError(f"{path}: {case} has {net.size} generators, the recording's pmu samples "
                                f"{len(self.namespaces)} namespace(s)")
             self.names = network_station_names(self.namespaces, net.names)
-            self.nominal_hz, emf_pu = net.f0_hz, np.asarray(net.emf_pu, dtype=float)
+            self.nominal_hz = net.f0_hz
             self.plant = f"{case}, {net.size} generators"
+            self.scenario, self.terminal_missing = _network_in_force(net, plant, self.fault_at_start)
         else:
             self.names = [namespace.strip("/") or SMIB_STATION for namespace in self.namespaces]
-            self.nominal_hz, emf_pu = plant.get("f0_hz"), np.ones(len(self.namespaces))
+            self.nominal_hz = plant["f0_hz"]
             self.plant = "the SMIB generator" if self.namespaces == [""] else f"{len(self.namespaces)} generators"
-            if not isinstance(self.nominal_hz, (int, float)):
-                raise CliError(f"{path}: the run parameters give no nominal frequency (plant.f0_hz)")
-        self.rate_hz = parameters.get("rate_hz", plant.get("pmu_rate_hz"))
-        if not isinstance(self.rate_hz, (int, float)):
-            raise CliError(f"{path}: the run parameters give no reporting rate (rate_hz)")
-        self.lockstep = parameters.get("mode", plant.get("mode")) == "lockstep"
-        self._fill(path, samples, readable_runs(recording), emf_pu)
-        self.fault_at_start = bool(plant.get("fault_at_start", False))
+        self.rate_hz, self.lockstep = plant["pmu_rate_hz"], plant["mode"] == "lockstep"
+        if not isinstance(self.rate_hz, (int, float)) or not isinstance(self.nominal_hz, (int, float)):
+            raise CliError(f"{path}: the recorded reporting rate ({self.rate_hz!r}) or nominal frequency "
+                           f"({self.nominal_hz!r}) is no number")
+        self._fill(path, samples, readable_runs(recording))
         self.breakpoints = _breakpoints(plant, case) if self.fault_at_start else ()
 
-    def _fill(self, path, samples: dict, runs: dict, emf_pu: np.ndarray) -> None:
+    @property
+    def terminal(self) -> bool:
+        """Whether the stream carries terminal V and I (the recording gives the network in force)."""
+        return self.terminal_missing is None
+
+    def _fill(self, path, samples: dict, runs: dict) -> None:
         """Arrays (instants, stations): every instant any generator reported; NaN where one did not."""
         self.stamp_ns = np.unique(np.concatenate([[row[0] for row in samples[ns]] for ns in self.namespaces]))
         if self.stamp_ns.size < 2:
             raise CliError(f"{path}: {self.stamp_ns.size} pmu sample(s): too few to stream at a rate")
         shape = (self.stamp_ns.size, len(self.namespaces))
-        self.delta_rad, speed, self.p_elec_pu, self.battery_pu, self.rocof_hz_per_s = (
-            np.full(shape, math.nan) for _ in range(5))
+        delta, speed, self.p_elec_pu, self.battery_pu, self.rocof_hz_per_s, true_delta = (
+            np.full(shape, math.nan) for _ in range(6))
         for column, namespace in enumerate(self.namespaces):
             rows = np.array(samples[namespace], dtype=float)
             stamps = np.array([row[0] for row in samples[namespace]], dtype=np.int64)
             at = np.searchsorted(self.stamp_ns, stamps)
-            self.delta_rad[at, column], speed[at, column], self.p_elec_pu[at, column] = rows[:, 1], rows[:, 2], rows[:, 3]
+            delta[at, column], speed[at, column], self.p_elec_pu[at, column] = rows[:, 1], rows[:, 2], rows[:, 3]
             if stamps.size >= 2:  # over the generator's own samples: one it lacks spoils no neighbour's
                 self.rocof_hz_per_s[at, column] = np.gradient(rows[:, 2], (stamps - stamps[0]) * 1e-9) / (2 * math.pi)
             run = runs.get(namespace)
             if run is not None:
-                battery = dict(zip(run.stamp_ns.tolist(), run.battery_power_pu.tolist()))
-                self.battery_pu[:, column] = [battery.get(stamp, math.nan) for stamp in self.stamp_ns.tolist()]
+                held = np.isin(run.stamp_ns, self.stamp_ns)
+                rows_at = np.searchsorted(self.stamp_ns, run.stamp_ns[held])
+                self.battery_pu[rows_at, column] = run.battery_power_pu[held]
+                true_delta[rows_at, column] = run.delta_rad[held]
         self.frequency_hz = frequency_hz(speed, self.nominal_hz)
         seconds = (self.stamp_ns - self.stamp_ns[0]) * 1e-9
-        self.magnitude = np.broadcast_to(emf_pu, shape)
-        # Simulated time of each sample: the stamp in lockstep, the time since the first (t = 0) in realtime.
-        self.t_s = self.stamp_ns * 1e-9 if self.lockstep else seconds
+        # Simulated time of each sample: the stamp in lockstep; realtime, the reporting grid's instant since
+        # the first sample (t = 0), so that a sample falls on the side of a breakpoint the plant saw it on.
+        self.t_s = self.stamp_ns * 1e-9 if self.lockstep else np.round(seconds * self.rate_hz) / self.rate_hz
+        emf_pu = np.ones(len(self.namespaces)) if self.net is None else np.asarray(self.net.emf_pu, dtype=float)
+        phasors = np.broadcast_to(emf_pu, shape)[:, :, None].astype(complex)
+        if self.terminal:
+            phasors = np.stack([self._terminal(t_s, row) for t_s, row in zip(self.t_s.tolist(), true_delta)])
+        self.magnitude, self.angle_rad = np.abs(phasors), np.angle(phasors)
+        self.angle_rad[:, :, 0] = delta  # the EMF's angle: the recorded measurement, as the plant sent it
+
+    def _terminal(self, t_s: float, true_delta: np.ndarray) -> np.ndarray:
+        """``(N, 3)``: E', V_t, I_t (pu of the machine's rating) at the recorded true angles, as the plant's."""
+        net = self.net
+        emf, current, voltage = terminal_phasors(net, self.scenario.network(t_s, net)[1], true_delta)
+        return np.column_stack((emf, voltage, current / (net.mbase_mva / net.base_mva)))
 
     def header(self, source: str) -> str:
         """The first sentence of the header frame: what is replayed and what is left out."""
+        terminal = (" Terminal V/I of the recorded true state (plant/state) with the recorded scenario's network."
+                    if self.terminal else f" Left out: terminal V/I ({self.terminal_missing}).")
         return (f"nni-replay {source}: a {'lockstep' if self.lockstep else 'realtime'} recording of {self.plant}, "
-                "replayed at its rate. Left out: terminal V/I (a recording holds the rotor angles, not the network "
-                "in force at each sample); DFREQ is the recorded speed's central difference / 2 pi; STAT and "
-                "FRACSEC say the clock is not synchronised (recorded instants)")
+                f"replayed at its rate.{terminal} DFREQ is the recorded speed's central difference / 2 pi; STAT "
+                "and FRACSEC say the clock is not synchronised (recorded instants)")
 
     def measure(self, k: int):
         """``measure(stat)`` of instant k, for :meth:`PlantStream.offer`."""
-        return lambda stat: station_values(stat, self.magnitude[k][:, None], self.delta_rad[k][:, None],
-                                           self.frequency_hz[k], self.rocof_hz_per_s[k],
+        return lambda stat: station_values(stat, self.magnitude[k], self.angle_rad[k], self.frequency_hz[k],
+                                           self.rocof_hz_per_s[k],
                                            np.column_stack((self.p_elec_pu[k], self.battery_pu[k])))
+
+
+def _network_in_force(net, plant: dict, fault_at_start: bool):
+    """``(scenario from t = 0, None)`` when the recorded parameters give the network in force at every sample,
+    else ``(None, why not)``."""
+    if not fault_at_start:
+        return None, "the run's disturbance started at a service call, whose instant the recording does not hold"
+    try:
+        fault = network_plant_config.scenario_from(net, plant)
+    except (KeyError, TypeError, ValueError) as error:
+        return None, f"the run parameters give no scenario: {error}"
+    return StartingAt(fault, 0.0, AngleDisplacement(np.zeros(net.size))), None
+
+
+def recorded_plant_values(parameters: dict, case: str | None) -> dict:
+    """The parameters the run's plant node had: its defaults (the node's YAML), overridden by those recorded
+    (``nni-demo`` records what it sets; the rate and mode also at the top level, which win)."""
+    specs = network_plant_config.parameters() if case is not None else plant_config.parameters()
+    recorded = parameters.get(NETWORK_PLANT_KEY if case is not None else SMIB_PLANT_KEY)
+    top = {name: parameters[key] for key, name in (("rate_hz", "pmu_rate_hz"), ("mode", "mode")) if key in parameters}
+    return {**{spec.name: spec.default for spec in specs}, **(recorded if isinstance(recorded, dict) else {}), **top}
 
 
 def _case(path, parameters: dict) -> str | None:
@@ -169,7 +219,7 @@ def _breakpoints(plant: dict, case: str | None) -> tuple:
     try:
         if case is None:
             return tuple(scenarios.from_values(plant).breakpoints())
-        return tuple(scenario_from(load_network(case), plant).breakpoints())
+        return tuple(network_plant_config.scenario_from(load_network(case), plant).breakpoints())
     except (KeyError, TypeError, ValueError):
         return ()
 
@@ -186,8 +236,8 @@ def serve(args) -> int:
                        "clock are not known")
     source = RecordedStream(recording, parameters)
     host, port = cli.checked_stream(args, source.rate_hz, source.nominal_hz)
-    stream = PlantStream((host, port), args.pmu_idcode, source.names, source.rate_hz, source.nominal_hz, False,
-                         FREQ_FORMAT, source.lockstep, source.header(args.recording), clock=_RecordedClock())
+    stream = PlantStream((host, port), args.pmu_idcode, source.names, source.rate_hz, source.nominal_hz,
+                         source.terminal, FREQ_FORMAT, source.lockstep, source.header(args.recording), clock=_RecordedClock())
     try:
         stream.start()
     except ValueError as error:
