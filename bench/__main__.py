@@ -25,9 +25,13 @@ Each table sets a measurement beside a baseline taken in the same run:
    echoes deployed alike;
 6. memory (and CPU) per controller process and per composed controller;
 7. where a network lockstep sample's CPU time goes, per part of the plant's
-   step and of the composed controllers' process (py-spy from outside).
+   step and of the composed controllers' process (py-spy from outside);
+8. the latency the C37.118 path adds to the loop, beside the ROS-fed loop;
 9. the cost per sample of authenticated battery commands: the controller's
-   HMAC-SHA256 seal and the plant's check, beside the bare publish.
+   HMAC-SHA256 seal and the plant's check, beside the bare publish;
+10. the C37.118 PMU server's frames/s for 1, 10 and 52 stations beside a bare
+    socket-send floor of the same bytes, and its reporting latency (sample
+    instant to arrival at a PDC process) at 50 frames/s.
 
 Node processes are started exactly as ``nni-demo`` starts them; discovery stays
 on localhost (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) in a ROS domain of the
@@ -46,6 +50,7 @@ from pathlib import Path
 from bench.command_auth import bench_command_auth
 from bench.common import NETWORK_RATE_HZ, ROOT
 from bench.c37118_loop import bench_c37118_loop
+from bench.c37118_server import FRAMES as C37118_SERVER_FRAMES, bench_c37118_server
 from bench.latency import bench_controller_share, bench_latency
 from bench.lockstep import bench_lockstep
 from bench.machine import machine_description
@@ -62,7 +67,7 @@ from nni_msgs_adapter.ros.processes import ChildError
 ROUNDS = 3
 #: What --only selects (all by default).
 BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime", "network-profile", "c37118-loop",
-              "command-auth")
+              "command-auth", "c37118-server")
 
 
 def parse_args(argv=None):
@@ -107,6 +112,9 @@ def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates, domain_i
         results["c37118-loop"] = bench_c37118_loop(env, log_root, 50.0, duration_s, ROUNDS)
     if "command-auth" in only:
         results["command-auth"] = bench_command_auth(domain_id)
+    if "c37118-server" in only:
+        results["c37118-server"] = bench_c37118_server(
+            env, C37118_SERVER_FRAMES // 10 if quick else C37118_SERVER_FRAMES, 5.0 if quick else duration_s)
     return results
 
 

@@ -13,7 +13,8 @@ MACHINE = {"cpu": "test CPU", "cores": 2, "kernel": "6.1", "python": "3.11", "pa
 HEADINGS = ["## 1. Closed-loop latency", "### 1b. The controller's share", "## 2. Lockstep throughput",
             "## 3. Region-of-attraction sweep", "## 4. Network lockstep throughput", "## 5. Network realtime",
             "## 6. Memory per controller", "## 8. Latency the C37.118 path adds to the loop",
-            "## 9. Authenticated battery commands"]
+            "## 9. Authenticated battery commands",
+            "## 10. C37.118 PMU server: frames per second and reporting latency"]
 
 
 def latency_row(rate_hz: float, p50_ratio: float, misses: int = 0) -> dict:
@@ -54,6 +55,15 @@ def c37118_loop_result(added_ms: float) -> dict:
             "round_added_ms": [added_ms] * 3}
 
 
+def c37118_server_result(p99_ms: float) -> dict:
+    rows = [{"stations": n, "bytes": 16 + 40 * n, "encode_us": 5.0, "offer_us": 6.0, "server_fps": 100000.0,
+             "floor_fps": 40000.0, "floor_ratio": 0.4} for n in (1, 10, 52)]
+    latency = {"stations": 10, "rate_hz": 50, "duration_s": 30.0, "frames": 1500, "received": 1500, "p50": 0.7,
+               "p99": p99_ms, "max": 6.0, "mean": 0.8, "offer_late_ms": {"p50": 0.2, "p99": 1.5, "max": 3.0,
+                                                                        "mean": 0.3}, "frames_dropped": 0}
+    return {"frames": 20000, "rows": rows, "latency": latency}
+
+
 def results(latency_ratio: float = 1.2, network_ratio: float = 1.8) -> dict:
     share_ms = {"p50": 0.4, "p99": 0.9, "max": 1.0, "mean": 0.45}
     return {
@@ -72,6 +82,7 @@ def results(latency_ratio: float = 1.2, network_ratio: float = 1.8) -> dict:
         "network-realtime": realtime_result(),
         "c37118-loop": c37118_loop_result(0.6),
         "command-auth": COMMAND_AUTH,
+        "c37118-server": c37118_server_result(3.0),
     }
 
 
@@ -215,3 +226,23 @@ def test_the_command_authentication_row_sets_sign_and_verify_beside_the_bare_pub
     assert ("| bare publish (µs) | sign (µs) | sealed publish (µs) | added by the seal (µs) | verify (µs) |"
             in text)
     assert "| 12.50 | 3.25 | 16.00 | +3.50 | 4.50 |" in text
+
+
+@pytest.mark.parametrize(("p99_ms", "verdict"), [(3.0, "met."), (5.0, "**not met**.")])
+def test_the_c37118_server_is_reported_beside_its_floor_and_judged_on_its_reporting_p99(p99_ms, verdict):
+    text = page({"c37118-server": c37118_server_result(p99_ms)})
+    assert "| 10 | 416 | 5.0 | 6.0 | 100000 | 40000 | 0.40 |" in text
+    assert "| 52 | 2096 | 5.0 | 6.0 | 100000 | 40000 | 0.40 |" in text
+    assert f"| 1500 / 1500 | 0.700 | {p99_ms:.3f} | 6.00 | 0.200 / 1.500 | 0 |" in text
+    assert f"p99 **{p99_ms:.3f} ms** < 5 ms (C37.118.1 P class allows 2/Fs = 40 ms): {verdict}" in text
+
+
+def test_a_c37118_server_run_that_could_not_complete_is_reported_beside_the_rows_that_did():
+    run = c37118_server_result(3.0)
+    run["rows"][2] = {"stations": 52, "error": "the server dropped frames"}
+    run["latency"] = {"error": "the PDC process did not turn data on"}
+    text = page({"c37118-server": run})
+    assert "| 52 | **not completed**: the server dropped frames | | | | | |" in text
+    assert "| 10 | 416 | 5.0 |" in text
+    assert "Reporting latency: **not completed**: the PDC process did not turn data on" in text
+    assert "P class" not in text

@@ -41,6 +41,7 @@ ROS_SIDE = {
     "nni_msgs_adapter.recording.replay_info": "--info, on replay_load",
     "nni_msgs_adapter.recording.replay_plot": "--plot, on replay_load",
     "nni_msgs_adapter.recording.replay_rerun": "--rrd/--connect/--spawn, on replay_load",
+    "nni_msgs_adapter.recording.replay_c37118": "--pmu-server, on replay_load",
     # The demos start no node of their own, but read the nodes' output lines by the nodes' own constants.
     "nni_battery_controller.demo_command": "nni-demo's entry, dispatching to the demos",
     "nni_battery_controller.demo_common": "the nodes' summary and count line prefixes",

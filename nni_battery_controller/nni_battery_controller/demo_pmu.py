@@ -1,14 +1,13 @@
 """The demos' IEEE C37.118.2 stream (``nni-demo --pmu-server``, ``nni-demo --case ... --pmu-server``).
 
 The options (where the plant's PMU stream listens, its IDCODE, how many PDCs
-a run waits for), checked before anything starts: ``--pmu-idcode`` and
-``--pmu-wait-for-pdcs`` need ``--pmu-server``, and the run's reporting rate
-must be one C37.118 allows at the plant's nominal frequency. While a run goes
+a run waits for: :mod:`nni_msgs_adapter.c37118.cli`, as ``nni-replay``'s),
+checked before anything starts, become the plant's stream parameters. While a run goes
 on, :class:`StreamWatch` follows the plant's log: the address it listens on
 (port 0: the one it picked) and one progress line per PDC that connects,
 turns data on or off, or goes away; after it, the stream's counters from the
-plant's final line (:data:`nni_plant_sim.pmu_stream.SUMMARY_PREFIX_STREAM`):
-frames offered, and per PDC the frames sent and dropped. Each run has its own
+plant's final line (:data:`nni_plant_sim.pmu_stream.SUMMARY_PREFIX_STREAM`),
+printed by :func:`~nni_msgs_adapter.c37118.cli.summary_line`. Each run has its own
 plant and so its own server: a PDC connected to one run is closed at its end.
 """
 
@@ -17,7 +16,7 @@ from __future__ import annotations
 import json
 
 from nni_battery_controller import demo_c37118
-from nni_msgs_adapter.c37118.profile import check_stream_rate, parse_server_address
+from nni_msgs_adapter.c37118 import cli
 from nni_msgs_adapter.ros.cli_support import CliError
 from nni_msgs_adapter.ros.processes import ChildError
 from nni_plant_sim.pmu_stream import SUMMARY_PREFIX_STREAM
@@ -26,21 +25,11 @@ from nni_plant_sim.pmu_stream import SUMMARY_PREFIX_STREAM
 LISTEN_WAIT_S = 30.0
 #: What the plant's log says once its stream listens (:meth:`.PlantStream.start`), and before each event.
 LISTENING_PREFIX, LISTENING_TEXT, EVENT_TEXT = "C37.118 PMU stream", " listening on ", "C37.118: "
-#: Options that apply only with ``--pmu-server``.
-STREAM_OPTIONS = ("--pmu-idcode", "--pmu-wait-for-pdcs")
 
 
 def add_pmu_options(parser) -> None:
     """``--pmu-server``, ``--pmu-idcode``, ``--pmu-wait-for-pdcs`` of the SMIB and the network demo."""
-    group = parser.add_argument_group("C37.118.2 PMU stream (for a PDC: pyc37, openPDC, Wireshark)")
-    group.add_argument("--pmu-server", metavar="[HOST:]PORT", default=None,
-                       help="serve every run's PMU measurements as an IEEE C37.118.2 stream over TCP at HOST:PORT "
-                            "(HOST: 127.0.0.1 unless named, 0.0.0.0 for every interface; PORT 0: a free one, "
-                            "printed; 4712 is customary); one station per generator; default: none")
-    group.add_argument("--pmu-idcode", type=int, default=1, metavar="N",
-                       help="the stream's IDCODE, 1..65534 (stations 1..N, one per generator; default: 1)")
-    group.add_argument("--pmu-wait-for-pdcs", type=int, default=0, metavar="N",
-                       help="start each run only once N PDCs have turned data on, 0..64 (default: 0, no wait)")
+    cli.add_pmu_options(parser, "every run's PMU measurements", "each run")
 
 
 def stream_parameters(args, words, nominal_hz: float) -> dict:
@@ -49,22 +38,11 @@ def stream_parameters(args, words, nominal_hz: float) -> dict:
     one more PDC to wait for); empty for neither. CliError for an option that needs ``--pmu-server`` without it,
     a bad address, IDCODE or count, or a rate C37.118 does not allow at ``nominal_hz``."""
     through_client = args.measurements == "c37118"
-    if args.pmu_server is None:
-        given = [word for word in words if word in STREAM_OPTIONS]
-        if given:
-            raise CliError(f"{given[0]} applies to a C37.118 stream only (--pmu-server [HOST:]PORT)")
-        if not through_client:
-            return {}
-    option = "--pmu-server" if args.pmu_server is not None else "--measurements c37118"
-    try:
-        host, port = parse_server_address(args.pmu_server) if args.pmu_server is not None else ("127.0.0.1", 0)
-        check_stream_rate(args.rate, nominal_hz)
-    except ValueError as error:
-        raise CliError(f"{option}: {error}") from None
-    if not 1 <= args.pmu_idcode <= 65534:
-        raise CliError(f"--pmu-idcode must be within 1..65534, got {args.pmu_idcode}")
-    if not 0 <= args.pmu_wait_for_pdcs <= 64:
-        raise CliError(f"--pmu-wait-for-pdcs must be within 0..64, got {args.pmu_wait_for_pdcs}")
+    cli.refuse_without_server(args, words)
+    if args.pmu_server is None and not through_client:
+        return {}
+    host, port = cli.checked_stream(args, args.rate, nominal_hz,
+                                    "--pmu-server" if args.pmu_server is not None else "--measurements c37118")
     return {"pmu_host": host, "pmu_port": port, "pmu_idcode": args.pmu_idcode,
             "pmu_wait_for_pdcs": args.pmu_wait_for_pdcs,
             **demo_c37118.plant_parameters(args.measurements, port, host, args.pmu_wait_for_pdcs)}
@@ -113,10 +91,3 @@ class StreamWatch:
             if line.startswith(SUMMARY_PREFIX_STREAM):
                 return json.loads(line[len(SUMMARY_PREFIX_STREAM):])
         raise CliError("the plant did not report its C37.118 stream's counters")
-
-
-def summary_line(stream: dict) -> str:
-    """``C37.118 stream 127.0.0.1:4712: 500 frames offered; PDC 127.0.0.1:5120 sent 502, dropped 0``."""
-    pdcs = "; ".join(f"PDC {pdc['address']} sent {pdc['frames_sent']}, dropped {pdc['frames_dropped']}"
-                     for pdc in stream["pdcs"]) or "no PDC connected"
-    return f"  C37.118 stream {stream['address']}: {stream['offered']} frames offered; {pdcs}"

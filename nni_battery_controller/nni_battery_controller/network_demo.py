@@ -47,7 +47,7 @@ from nni_battery_controller.demo_common import (
     start_when_read_back,
     write_summary,
 )
-from nni_battery_controller.demo_pmu import StreamWatch, add_pmu_options, stream_parameters, summary_line, wait_text
+from nni_battery_controller.demo_pmu import StreamWatch, add_pmu_options, stream_parameters, wait_text
 from nni_battery_controller.demo_viewer import (
     BRIDGE_WAIT_S,
     add_rerun_option,
@@ -81,6 +81,7 @@ from nni_battery_controller.network_deployment import (
 from nni_battery_controller.network_sim import ANGLE_REFERENCES, NetworkLaw, assess_network
 from nni_msgs_adapter.recording.mcap_logger import SUBSCRIBED_PREFIX
 from nni_msgs_adapter.recording.runs import network_trajectory, read_generator_runs
+from nni_msgs_adapter.c37118.cli import summary_line
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.cli_support import (
     CliError,

@@ -50,7 +50,7 @@ from nni_battery_controller.demo_common import (
     start_when_read_back,
     write_summary,
 )
-from nni_battery_controller.demo_pmu import StreamWatch, add_pmu_options, stream_parameters, summary_line, wait_text
+from nni_battery_controller.demo_pmu import StreamWatch, add_pmu_options, stream_parameters, wait_text
 from nni_battery_controller.demo_viewer import (
     BRIDGE_WAIT_S,
     add_rerun_option,
@@ -62,6 +62,7 @@ from nni_battery_controller.figures import plot_runs
 from nni_battery_controller.options import PAPER_BATTERY_LIMITS, add_model_options, resolve_model
 from nni_battery_controller.simulate import Trajectory
 from nni_battery_controller.verdicts import assess, verdict_text
+from nni_msgs_adapter.c37118.cli import summary_line
 from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,

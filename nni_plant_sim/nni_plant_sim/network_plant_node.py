@@ -35,7 +35,7 @@ from nni_plant_sim.network_plant_config import battery_ratings, parameters, scen
 from nni_plant_sim.network_scenarios import AngleDisplacement
 from nni_plant_sim.phasors import frequency_hz, rocof_hz_per_s, terminal_phasors
 from nni_plant_sim.plant_node_base import PlantNodeBase
-from nni_plant_sim.pmu_stream import station_values
+from nni_plant_sim.pmu_stream import network_station_names, station_values
 
 #: Prefix of the JSON line with every generator's final diagnostics values, printed at exit.
 SUMMARY_PREFIX = "network_plant_node summary: "
@@ -87,8 +87,8 @@ class NetworkPlantNode(PlantNodeBase):
     def _stream_description(self) -> tuple:
         """A station per generator, named by its namespace, machine and bus; EMF, terminal voltage and current."""
         net = self._plant
-        names = [f"{ns} {name.replace('@', ' bus ')}" for ns, name in zip(self.namespaces, net.names)]
-        return names, net.f0_hz, True, f"nni_plant_sim network_plant_node: {self._values['case']}, {net.size} generators"
+        return (network_station_names(self.namespaces, net.names), net.f0_hz, True,
+                f"nni_plant_sim network_plant_node: {self._values['case']}, {net.size} generators")
 
     def _synchrophasors(self, sample, frames, stat):
         """Per generator: the EMF at the measured angle, V_t and I_t (pu of the machine's rating) of the true

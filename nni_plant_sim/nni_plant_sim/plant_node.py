@@ -19,7 +19,7 @@ from nni_plant_sim.model import electrical_power, invariant_set_boundary
 from nni_plant_sim.phasors import frequency_hz, rocof_hz_per_s
 from nni_plant_sim.plant_config import parameters, plant_from
 from nni_plant_sim.plant_node_base import PlantNodeBase
-from nni_plant_sim.pmu_stream import station_values
+from nni_plant_sim.pmu_stream import SMIB_STATION, station_values
 from nni_plant_sim.scenarios import InitialAngle, from_values
 
 #: Prefix of the JSON line with the final diagnostics values printed at exit.
@@ -61,7 +61,7 @@ class PlantNode(PlantNodeBase):
 
     def _stream_description(self) -> tuple:
         """One station, the generator (no buses: its infinite bus is the reference); EMF only."""
-        return ("SMIB generator",), self._values["f0_hz"], False, "nni_plant_sim plant_node: the SMIB generator"
+        return (SMIB_STATION,), self._values["f0_hz"], False, "nni_plant_sim plant_node: the SMIB generator"
 
     def _synchrophasors(self, sample, frames, stat):
         """The EMF (1 pu) at the measured angle, FREQ from the measured speed, ROCOF of the true state, P_E, P_ST."""

@@ -47,6 +47,14 @@ NO_STREAM = -1
 SUMMARY_PREFIX_STREAM = "c37118_server summary: "
 #: The lockstep clock as the stream states it: simulated time, not synchronised to UTC.
 SIMULATED_CLOCK = ClockState(False, math.inf, True)
+#: The SMIB plant's one station.
+SMIB_STATION = "SMIB generator"
+
+
+def network_station_names(namespaces, machines) -> list[str]:
+    """A network generator's station name: its namespace, machine and bus (``gen3 G3 bus 32``)."""
+    return [f"{namespace.strip('/')} {machine.replace('@', ' bus ')}"
+            for namespace, machine in zip(namespaces, machines)]
 
 
 def stream_parameters(defaults: dict) -> tuple[Spec, ...]:

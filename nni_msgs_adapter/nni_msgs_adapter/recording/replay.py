@@ -16,6 +16,10 @@ Description and figure, no ROS graph (:mod:`replay_info`, :mod:`replay_plot`)::
     nni-replay run.mcap --info            # what `ros2 bag info` shows, the run's parameters, its verdicts
     nni-replay run.mcap --plot out.png    # the run's figure (nni-simulate's, from the recorded samples)
 
+IEEE C37.118.2 to PDCs at the recorded rate, no ROS graph (:mod:`replay_c37118`)::
+
+    nni-replay run.mcap --pmu-server [HOST:]PORT [--pmu-idcode N] [--pmu-wait-for-pdcs N]
+
 Every job reads the recording through :mod:`replay_load`. The options of one job are
 refused with another, with one line naming them.
 
@@ -32,9 +36,11 @@ from __future__ import annotations
 
 import sys
 
+from nni_msgs_adapter.c37118.cli import add_pmu_options, refuse_without_server
 from nni_msgs_adapter.ros.cli_support import (
     CliError, OneLineParser, finite_float, positive_float, run_cli, writable_output,
 )
+from nni_msgs_adapter.recording.replay_c37118 import serve
 from nni_msgs_adapter.recording.replay_info import describe
 from nni_msgs_adapter.recording.replay_load import PROG
 from nni_msgs_adapter.recording.replay_plot import plot
@@ -59,7 +65,7 @@ def non_negative_float(text: str) -> float:
 def build_parser() -> OneLineParser:
     """The nni-replay command line."""
     parser = OneLineParser(prog=PROG, description="Replay an NNI MCAP recording on ROS 2, view it in Rerun, "
-                                                  "describe it or draw its figure.")
+                                                  "describe it, draw its figure or serve it to PDCs as C37.118.")
     parser.add_argument("recording", help="MCAP file (ROS 2 profile), e.g. recordings/paper_b0.3.mcap")
     parser.add_argument("--allow-partial", action="store_true",
                         help="use a recording cut short (killed logger, full disk) up to its last flush "
@@ -93,6 +99,7 @@ def build_parser() -> OneLineParser:
                       help="print what `ros2 bag info` shows, whether the file is complete, the run's parameters "
                            "and its verdicts")
     what.add_argument("--plot", type=writable_output, metavar="OUT.png", help="draw the run's figure")
+    add_pmu_options(parser, "the recording's PMU measurements at its rate (no ROS, no Rerun)", "the stream")
     return parser
 
 
@@ -127,10 +134,17 @@ def main(argv=None) -> int:
         args = parser.parse_args(own)
         if args.wait_for_subscribers < 0:
             raise CliError(f"--wait-for-subscribers must be >= 0, got {args.wait_for_subscribers}")
+        refuse_without_server(args, own)
         viewing = args.rrd is not None or args.connect is not None or args.spawn
         describing = args.info or args.plot is not None
         if viewing and describing:
             raise CliError("--info/--plot: not with --rrd/--connect/--spawn (one output at a time)")
+        if args.pmu_server is not None:
+            if viewing or describing:
+                raise CliError("--pmu-server: not with --rrd/--connect/--spawn/--info/--plot (one output at a time)")
+            refuse_options(args, ros_args, _ROS_ONLY, "ROS playback options", "--pmu-server")
+            refuse_options(args, [], _RERUN_ONLY, "a Rerun option", "--pmu-server")
+            return serve(args)
         if viewing or describing:
             refuse_options(args, ros_args, _ROS_ONLY, "ROS playback options",
                            "--rrd/--connect/--spawn" if viewing else "--info/--plot")
