@@ -145,7 +145,7 @@ def write_kundur(path: Path, samples: int, *, rate_hz: float = 30.0, f0: float |
     ``f0`` as a SMIB's (``plant``)."""
     with Ros2McapWriter(path, flush_period_s=3600.0) as writer:
         if metadata:  # what nni-demo --case records: the parameters it sets (the node's defaults for the rest)
-            plant = plant_parameters("kundur_two_area", BUS_FAULT, "realtime", rate_hz, samples / rate_hz)
+            plant = plant_parameters("kundur_two_area", BUS_FAULT, "realtime", rate_hz, samples / rate_hz, [0.1] * 4)
             plant.update({} if fault_at_start else {"fault_at_start": False})  # as a logger started by hand
             run = {"case": "kundur_two_area", "mode": "realtime", "rate_hz": rate_hz, "network_plant": plant}
             if f0 is not None:
