@@ -9,10 +9,14 @@ Nothing here mocks ROS.
 from __future__ import annotations
 
 import atexit
+import fcntl
 import itertools
+import json
 import os
+import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from contextlib import contextmanager
@@ -87,16 +91,75 @@ class NodeProcess(Child):
         return self.stop(timeout)
 
 
-@contextmanager
-def busy_processes(count: int = 2):
-    """``count`` processes spinning on a core each (a loaded machine) for the block; ended by pid."""
-    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+#: A busy process: a core spun until the process that started it is gone (a test worker killed leaves none).
+_SPIN = "import os\nparent = os.getppid()\nwhile os.getppid() == parent:\n    for _ in range(200000):\n        pass\n"
+#: The busy processes this process started and has not reaped yet.
+_spinners: list[subprocess.Popen] = []
+
+
+def _alive(pid: int) -> bool:
     try:
-        yield busy
+        os.kill(pid, 0)
+    except OSError:
+        return False
+    return not Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+
+
+def busy_processes(count: int = 2):
+    """``count`` processes spinning on a core each (a loaded machine) for the block.
+
+    The suite's parallel workers share them: a block that starts while another worker's is on joins its
+    spinners (at least ``count`` of them run beside every block), and the last block to end stops them, so
+    that two workers' loaded tests at once load the machine as one does (no worker's test sees fewer than
+    ``count`` spinning beside it). Outside pytest-xdist each block has its own."""
+    run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
+    return _own_busy(count) if run is None else _shared_busy(count, Path(tempfile.gettempdir()) / f"nni-busy-{run}")
+
+
+@contextmanager
+def _own_busy(count: int):
+    busy = [subprocess.Popen([sys.executable, "-c", _SPIN]) for _ in range(count)]
+    try:
+        yield
     finally:
         for proc in busy:
             proc.kill()
             proc.wait()
+
+
+@contextmanager
+def _shared_busy(count: int, state_file: Path):
+    def update(change):
+        with open(f"{state_file}.lock", "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            state = json.loads(state_file.read_text()) if state_file.exists() else {"users": 0, "pids": []}
+            state = change(state)
+            state_file.write_text(json.dumps(state))
+
+    def join(state):
+        pids = [pid for pid in state["pids"] if _alive(pid)]
+        started = [subprocess.Popen([sys.executable, "-c", _SPIN]) for _ in range(max(0, count - len(pids)))]
+        _spinners.extend(started)
+        return {"users": state["users"] + 1, "pids": pids + [proc.pid for proc in started]}
+
+    def leave(state):
+        if state["users"] > 1:
+            return {**state, "users": state["users"] - 1}
+        for pid in state["pids"]:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+        return {"users": 0, "pids": []}
+
+    update(join)
+    try:
+        yield
+    finally:
+        update(leave)
+        for proc in list(_spinners):  # reap what this worker started and someone stopped
+            if proc.poll() is not None:
+                _spinners.remove(proc)
 
 
 @contextmanager
