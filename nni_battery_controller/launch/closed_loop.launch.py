@@ -84,11 +84,11 @@ def launched_nodes(values: dict) -> dict:
     (each as a value): the plant's battery rated the controller's b, its run held for the read-back; with
     ``measurements`` c37118 the client node too (ValueError for a ``measurements`` or port that cannot be)."""
     measurements = values["measurements"]
-    if measurements not in demo_c37118.MEASUREMENTS:
-        raise ValueError(f"measurements must be one of {', '.join(demo_c37118.MEASUREMENTS)}, got {measurements!r}")
+    port, stream = demo_c37118.launch_stream(measurements, values["pmu_port"], values["pmu_host"])
     plant = {**{name: values[name] for name in (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS)},
              "battery_rating_pu": values["battery_limit_pu"], "hold_until_released": True,
-             "wait_for_subscribers": demo_c37118.plant_readers(measurements, 2)}  # the controller and the logger
+             "wait_for_subscribers": demo_c37118.plant_readers(measurements, 2),  # the controller and the logger
+             **stream}
     nodes = {
         "plant": plant,
         "controller": {**{name: values[name] for name in (*CONTROLLER_ARGUMENTS, *MODEL_ARGUMENTS)},
@@ -96,10 +96,6 @@ def launched_nodes(values: dict) -> dict:
         "mcap_logger": {name: values[name] for name in LOGGER_ARGUMENTS},
     }
     if measurements == "c37118":  # it connects once the controller and the logger read its c37118/pmu
-        if values["pmu_port"] == 0:
-            raise ValueError("measurements:=c37118 needs a fixed pmu_port (the client connects to it), got 0")
-        port = demo_c37118.LAUNCH_PORT if values["pmu_port"] < 0 else values["pmu_port"]
-        plant.update(demo_c37118.plant_parameters(measurements, port, values["pmu_host"]))
         nodes["c37118_client"] = demo_c37118.client_parameters(port, values["mode"], 2, (),
                                                                demo_c37118.client_host(values["pmu_host"]),
                                                                values["pmu_idcode"])

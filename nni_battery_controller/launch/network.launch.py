@@ -43,9 +43,8 @@ import math
 
 import yaml
 
-from nni_battery_controller.demo_c37118 import LAUNCH_PORT, MEASUREMENTS, client_host, client_parameters, plant_readers
+from nni_battery_controller.demo_c37118 import client_host, client_parameters, launch_stream, plant_readers
 from nni_battery_controller.demo_c37118 import controller_parameters as measurement_topic
-from nni_battery_controller.demo_c37118 import plant_parameters as stream_parameters
 from nni_battery_controller.controller_config import parameters as controller_node_parameters
 from nni_battery_controller.network_deployment import (
     battery_limits,
@@ -194,13 +193,8 @@ def network_nodes(given: dict) -> list[dict]:
     limits = battery_limits(net.size, float(_value(values["battery_limit_pu"])),
                             generator_limits(values["gen_b"].split(), net.size, "gen_b"))
     measurements, stream = values["measurements"], stream_values(values)
-    if measurements not in MEASUREMENTS:
-        raise ValueError(f"measurements must be one of {', '.join(MEASUREMENTS)}, got {measurements!r}")
-    if measurements == "c37118":
-        if stream["pmu_port"] == 0:
-            raise ValueError("measurements:=c37118 needs a fixed pmu_port (the client connects to it), got 0")
-        port = LAUNCH_PORT if stream["pmu_port"] < 0 else stream["pmu_port"]
-        stream.update(stream_parameters(measurements, port, stream["pmu_host"]))
+    port, client_stream = launch_stream(measurements, stream["pmu_port"], stream["pmu_host"])
+    stream.update(client_stream)
     plant = {**plant_parameters(case, scenario, values["mode"], rate, float(_value(values["duration_s"])), limits,
                                 plant_readers(measurements, 2)), **stream}
     nodes = [{"package": LOGGER[0], "executable": LOGGER[1], "name": "mcap_logger", "namespace": "",

@@ -47,6 +47,20 @@ def plant_parameters(measurements: str, port: int = 0, host: str = "127.0.0.1", 
     return {"pmu_port": port, "pmu_host": host, "pmu_freq_format": "float", "pmu_wait_for_pdcs": other_pdcs + 1}
 
 
+def launch_stream(measurements: str, pmu_port: int, pmu_host: str) -> tuple[int, dict]:
+    """A launch file's stream: ``(its port, the plant's stream parameters for the client)``, served on
+    ``pmu_port`` or, when that gives none (-1), on :data:`LAUNCH_PORT`; ``(pmu_port, {})`` for measurements
+    ``ros``. ValueError for another ``measurements``, or for port 0 (a port the launch cannot learn)."""
+    if measurements not in MEASUREMENTS:
+        raise ValueError(f"measurements must be one of {', '.join(MEASUREMENTS)}, got {measurements!r}")
+    if measurements != "c37118":
+        return pmu_port, {}
+    if pmu_port == 0:
+        raise ValueError("measurements:=c37118 needs a fixed pmu_port (the client connects to it), got 0")
+    port = LAUNCH_PORT if pmu_port < 0 else pmu_port
+    return port, plant_parameters(measurements, port, pmu_host)
+
+
 def controller_parameters(measurements: str) -> dict:
     """The controllers' measurement topic (the default, ``pmu``, for measurements ``ros``)."""
     return {"measurement_topic": STREAM_TOPIC} if measurements == "c37118" else {}
