@@ -254,13 +254,15 @@ class PlantNodeBase(LoopNode):
 
     def _on_command(self, index: int, data: bytes) -> None:
         arrival_ns = self.now_ns()
-        if self._loop is None:
-            return
         self._check_writers(index)
         try:
             stamp_ns, power, seal = contract.command_from_bytes(data)
         except contract.ContractError:
             stamp_ns, power, seal = 0, math.nan, None  # malformed: invalid (unauthenticated), as a non-finite power
+        if self._loop is None:  # before the run: it answers no measurement; counted by what it is, never applied
+            self._channels[index].admit(stamp_ns, power, arrival_ns, seal=seal)
+            self._report_events(index)
+            return
         # An answer to the stream's stamp (to the microsecond) answers the plant's sample; the seal covers the first.
         sample_ns = stamp_ns if self._stream is None else self._stream.plant_stamp(stamp_ns)
         self._publish(self._loop.command(index, sample_ns, power, arrival_ns, seal, stamp_ns)[1])

@@ -202,9 +202,9 @@ class CommandChannel:
 
     def health(self, started: bool, waiting_for: str) -> tuple[str, str]:
         """``(level, message)`` of the plant's status: level a DiagnosticStatus constant's name."""
-        if not started:
-            return "WARN", waiting_for or "waiting for subscribers"
-        return ("ERROR", f"compromised: {self.alarm}") if self.compromised else ("OK", "running")
+        if self.compromised:  # before the run too: a rogue on the command topic is an alarm whenever it writes
+            return "ERROR", f"compromised: {self.alarm}"
+        return ("OK", "running") if started else ("WARN", waiting_for or "waiting for subscribers")
 
     def summary(self) -> dict:
         """Counters, timing and the largest applied power, for diagnostics."""
