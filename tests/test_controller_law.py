@@ -159,8 +159,9 @@ def test_unlimited_w_hat_is_half_z_q1_z_and_decreases_at_z_q2_z(plant, gains, b,
     z = np.array(z)
     q1 = q1_matrix(plant.inertia_m, ctrl.gain_k, ctrl.gain_l)
     w_hat = closed_loop_lyapunov(d, speed, x3, plant, ctrl)
-    # Same quadratic form computed two ways: rounding only (scale = the largest term).
-    scale = float(np.abs(q1).max() * z @ z)
+    # Same quadratic form computed two ways: rounding only (scale = the largest term; below the smallest normal
+    # float, where z @ z underflows, rounding is absolute).
+    scale = float(np.abs(q1).max() * z @ z) + np.finfo(float).tiny
     assert_allclose(w_hat, 0.5 * z @ q1 @ z, rtol=0, atol=1e-13 * scale)
     # Theorem 2: W' = z^T Q2 z with the paper's Q2.
     k, tau = ctrl.gain_k, ctrl.tau_s

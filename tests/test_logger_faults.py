@@ -10,6 +10,7 @@ flushed before the failure.
 from __future__ import annotations
 
 import shutil
+import signal
 import subprocess
 import time
 from pathlib import Path
@@ -69,8 +70,12 @@ def run_until_the_logger_fails(tmp_path, path: Path, pmu_rate_hz: float, during=
             assert probe.wait_for_publishers(contract.TOPIC_DIAGNOSTICS, 1, timeout=30.0), \
                 "the probe never matched the logger's /diagnostics publisher"
             start("controller", CONTROLLER, {"battery_limit_pu": 0.3, "sample_rate_hz": pmu_rate_hz})
-            start("plant", PLANT, {"mode": "realtime", "duration_s": 0.0, "pmu_rate_hz": pmu_rate_hz,
-                                   "wait_for_subscribers": 2})
+            plant = start("plant", PLANT, {"mode": "realtime", "duration_s": 0.0, "pmu_rate_hz": pmu_rate_hz,
+                                           "wait_for_subscribers": 2, "hold_until_released": True})
+            # The run starts once the probe hears the plant's states: at 500 frames/s the small disk fills in
+            # under a second, and a probe matched after that (seen under load) received nothing to compare.
+            assert probe.wait_for_publishers(contract.TOPIC_PLANT_STATE, 1, timeout=30.0)
+            plant.proc.send_signal(signal.SIGUSR1)
             if during is not None:
                 during(probe)
             status = logger.wait(timeout=60)
