@@ -177,7 +177,8 @@ def measurements_on(path: str, topic: str) -> dict:
 FLOAT32_LOOP_TOL = 1e-6
 
 
-@pytest.mark.parametrize("options", [("--duration", "3"), ("--case", "kundur_two_area", "--rate", "60", "--duration", "2")],
+@pytest.mark.parametrize("options", [("--duration", "3"), ("--case", "kundur_two_area", "--deployment", "composed",
+                                                             "--rate", "60", "--duration", "2")],
                          ids=["smib", "kundur"])
 def test_lockstep_through_c37118_is_the_ros_fed_run_to_float32_precision(tmp_path, options):
     domain = fresh_domain_id()

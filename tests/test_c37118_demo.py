@@ -187,8 +187,10 @@ def test_ieee39_for_30_s_loses_no_frame_and_a_pdc_that_never_reads_costs_the_loo
         with lock:
             instants.update(sample.instant_ns for sample in samples)
 
-    demo = start_demo(["--case", "ieee39", "--mode", "realtime", "--rate", "60", "--b", "0.1", "--duration", "30",
-                       "--pmu-server", "0", "--pmu-wait-for-pdcs", "2"], fresh_domain_id(), tmp_path / "out")
+    # Composed controllers: the stream is what is judged, and one process starts in a tenth of the CPU of ten.
+    demo = start_demo(["--case", "ieee39", "--deployment", "composed", "--mode", "realtime", "--rate", "60",
+                       "--b", "0.1", "--duration", "30", "--pmu-server", "0", "--pmu-wait-for-pdcs", "2"],
+                      fresh_domain_id(), tmp_path / "out")
     try:
         host, port = stream_address(demo, lines)
         assert host == "127.0.0.1" and port > 0, "port 0: the plant picks one and the demo says which"
