@@ -28,7 +28,7 @@ from nni_battery_controller.smib_demo import (
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.cli_support import CliError
 from nni_msgs_adapter.recording.runs import read_generator_run
-from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX
+from nni_msgs_adapter.viewing.bridge_protocol import PROGRESS_PREFIX
 from nni_msgs_adapter.viewing.rerun_layout import run_paths
 from rosproc import Probe, busy_processes, fresh_domain_id, node_processes, ros_env
 

@@ -23,7 +23,7 @@ import pytest
 from mcap.reader import make_reader
 
 from nni_battery_controller.network_sim import NetworkLaw, assess_network, simulate_network
-from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX
+from nni_msgs_adapter.viewing.bridge_protocol import PROGRESS_PREFIX
 from nni_plant_sim.cases import load_network
 from nni_plant_sim.network_scenarios import BusFault
 from rosproc import fresh_domain_id, node_processes

@@ -9,14 +9,17 @@ from __future__ import annotations
 
 import sys
 
-from nni_battery_controller import network_demo, smib_demo
 from nni_msgs_adapter.ros.cli_support import given_options
 
 
 def main(argv=None) -> int:
-    """Entry point of ``nni-demo``."""
+    """Entry point of ``nni-demo``: imports only the demo it runs (each loads its own half of the project)."""
     if "--case" in given_options(sys.argv[1:] if argv is None else argv):
+        from nni_battery_controller import network_demo
+
         return network_demo.main(argv)
+    from nni_battery_controller import smib_demo
+
     return smib_demo.main(argv)
 
 

@@ -19,8 +19,7 @@ from pathlib import Path
 
 from nni_msgs_adapter.ros.cli_support import CliError, writable_output
 from nni_msgs_adapter.ros.processes import ChildError, Supervisor
-from nni_msgs_adapter.viewing.rerun_bridge import READY_TEXT
-from nni_msgs_adapter.viewing.rerun_stream import display_missing
+from nni_msgs_adapter.viewing.bridge_protocol import READY_TEXT, display_missing
 
 #: Seconds the Rerun bridge gets, once the run's recording is read, to report every one of its samples.
 BRIDGE_WAIT_S = 30.0

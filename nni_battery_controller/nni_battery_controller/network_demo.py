@@ -95,7 +95,7 @@ from nni_msgs_adapter.ros.cli_support import (
 from nni_msgs_adapter.ros.command_auth import run_key
 from nni_msgs_adapter.ros.processes import ChildError, Supervisor, with_participants
 from nni_msgs_adapter.ros.readback import expected_parameters
-from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX
+from nni_msgs_adapter.viewing.bridge_protocol import PROGRESS_PREFIX
 from nni_plant_sim.cases import CASES, load_network
 from nni_plant_sim.network_plant_node import SUMMARY_PREFIX, parameters as plant_node_parameters
 

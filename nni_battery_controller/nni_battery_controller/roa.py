@@ -64,7 +64,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
 
 from nni_battery_controller.closed_loop import LoopParams, closed_loop_rate
 from nni_battery_controller.law import ControllerParams, q1_matrix, saturation_input
@@ -189,6 +188,8 @@ def returns_level(plant: SmibParams, ctrl: ControllerParams, angles: int = 720, 
     |w| / b there grows with r (the ellipse scales with sqrt(r)), and r is the
     root of that margin minus one (brentq).
     """
+    from scipy.optimize import brentq  # with the search, not the module: see simulate's docstring
+
     b = ctrl.battery_limit_pu
     if b == 0.0:
         return 0.0

@@ -19,7 +19,9 @@ before it starts. A run is judged by :mod:`nni_battery_controller.verdicts`;
 the searches over many runs (critical clearing time, delay margin) are in
 :mod:`nni_battery_controller.margins`.
 
-Pure numpy/scipy: no ROS import.
+Pure numpy/scipy: no ROS import. scipy is imported where the continuous loop
+runs, not with the module: the demos and nodes that only use the sampled loop
+and :class:`Trajectory` start without it (half a second of CPU each).
 """
 
 from __future__ import annotations
@@ -28,8 +30,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import solve_ivp
-from scipy.optimize import brentq
 
 from nni_battery_controller.closed_loop import (
     SATURATED,
@@ -137,6 +137,8 @@ def simulate_continuous(
     the first crossing found is located by root finding and handled like an
     event: no output sample is left in a mode the law does not allow there.
     """
+    from scipy.integrate import solve_ivp
+
     b = ctrl.battery_limit_pu
     delta_bar = plant.delta_bar_rad
     grid = np.linspace(0.0, duration_s, int(round(duration_s / output_step_s)) + 1)
@@ -262,6 +264,8 @@ def _first_crossing(sol, t0: float, t1: float, events, grid: np.ndarray) -> floa
     None when no event function is given or none is crossed inside the interval
     (a crossing at t1 itself is solve_ivp's own event).
     """
+    from scipy.optimize import brentq
+
     if not events or t1 <= t0:
         return None
     scan = np.union1d(np.linspace(t0, t1, int(math.ceil((t1 - t0) / SCAN_STEP_S)) + 1),

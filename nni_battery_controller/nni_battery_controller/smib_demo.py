@@ -76,7 +76,7 @@ from nni_msgs_adapter.ros.command_auth import run_key
 from nni_msgs_adapter.ros.processes import ChildError, Supervisor
 from nni_msgs_adapter.ros.readback import expected_parameters
 from nni_msgs_adapter.recording.runs import GeneratorRun, read_generator_run, sampled_trajectory
-from nni_msgs_adapter.viewing.rerun_bridge import PROGRESS_PREFIX
+from nni_msgs_adapter.viewing.bridge_protocol import PROGRESS_PREFIX
 from nni_msgs_adapter.ros.defaults import controller_defaults, plant_defaults
 from nni_plant_sim.cases import CASES
 from nni_plant_sim.plant_config import parameters as plant_node_parameters

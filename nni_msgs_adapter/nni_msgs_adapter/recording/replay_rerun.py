@@ -35,6 +35,7 @@ from nni_msgs_adapter.recording.mcap_io import RecordingError
 from nni_msgs_adapter.recording.network_runs import CASE_KEY
 from nni_msgs_adapter.recording.replay_load import PROG, load, readable_runs, recorded_network, warn
 from nni_msgs_adapter.recording.runs import GeneratorRun, run_metadata
+from nni_msgs_adapter.viewing.bridge_protocol import display_missing
 
 #: Port of a Rerun viewer's gRPC server when a rerun+http URL names none (Rerun's default).
 DEFAULT_VIEWER_PORT = 9876
@@ -85,8 +86,6 @@ def check_listening(url: str) -> None:
 
 def check_display() -> None:
     """CliError if a native viewer cannot open a window here."""
-    from nni_msgs_adapter.viewing.rerun_stream import display_missing
-
     if display_missing():
         raise CliError("--spawn needs a display (DISPLAY and WAYLAND_DISPLAY are unset): "
                        "write --rrd OUT.rrd, or stream with --connect URL to a viewer elsewhere")

@@ -56,6 +56,7 @@ from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.defaults import plant_defaults
 from nni_msgs_adapter.ros.node_main import run_node
 from nni_msgs_adapter.ros.ros_params import Spec, declared_values
+from nni_msgs_adapter.viewing.bridge_protocol import PROGRESS_PREFIX, READY_TEXT, URL_TEXT
 from nni_msgs_adapter.viewing.palette import colour_rgb, generator_colour_rgb
 from nni_msgs_adapter.viewing.rerun_layout import NETWORK_VIEW, blueprint
 from nni_msgs_adapter.viewing.rerun_live import LiveLogger
@@ -100,13 +101,6 @@ def network_of(namespaces: list[str], case: str):
     return net
 
 
-#: Logged once the subscriptions exist; nni-demo waits for it before the first run.
-READY_TEXT = "rerun bridge ready"
-
-#: Printed (then a JSON object) whenever a run's logged sample count changes.
-PROGRESS_PREFIX = "rerun bridge run: "
-#: Logged before the web viewer's URL (sink serve).
-URL_TEXT = "Rerun web viewer:"
 #: How often the bridge looks for a plant and a controller, and reports progress, s.
 WATCH_PERIOD_S = 0.05
 

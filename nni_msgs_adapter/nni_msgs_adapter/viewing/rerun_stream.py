@@ -25,11 +25,6 @@ APP_ID = "nni_battery_control"
 RECORDING_ID = "nni_battery_control_runs"
 
 
-def display_missing() -> bool:
-    """True where a native viewer cannot open a window (Linux without X11 or Wayland)."""
-    return sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-
-
 def _put_venv_rerun_on_path() -> None:
     """rr.spawn runs ``rerun`` from PATH; a venv entry point started by its full path has its bin dir off PATH."""
     if shutil.which("rerun") is None:
