@@ -11,36 +11,35 @@ from bench.common import median_latency_ms, network_loop, not_completed, percent
 from nni_msgs_adapter.ros.processes import ChildError
 
 
-def bench_network_realtime(env, log_root: Path, case: str, rate_hz: float, duration_s: float, rounds: int) -> dict:
+def bench_network_realtime(env, log_root: Path, case: str, rate_hz: float, round_s: float, rounds: int) -> dict:
     """``measure_network_realtime``, or the run that could not complete, reported as such."""
     try:
-        return measure_network_realtime(env, log_root, case, rate_hz, duration_s, rounds)
+        return measure_network_realtime(env, log_root, case, rate_hz, round_s, rounds)
     except (ChildError, RuntimeError) as error:
         return not_completed("network realtime", error)
 
 
-def measure_network_realtime(env, log_root: Path, case: str, rate_hz: float, duration_s: float,
+def measure_network_realtime(env, log_root: Path, case: str, rate_hz: float, round_s: float,
                              rounds: int) -> dict:
     """Realtime with N controller processes and with N composed in one, each beside its deployment's timed fan-out.
 
-    In ``rounds`` alternating rounds of ``duration_s / rounds``, per deployment: the loop, then the timed
+    In ``rounds`` alternating rounds of ``round_s`` each, per deployment: the loop, then the timed
     fan-out to N echoes deployed alike (N processes, or N nodes of one process) at the same rate. Per
     generator: the ping-pong's round trips pooled, the loop's median of the rounds' p50 and p99 (from the
     plant's diagnostics), misses summed; memory: the controllers' and echoes' resident sets at the end of
     each run.
     """
-    part_s = duration_s / rounds
     kinds = ("separate", "composed")
-    progress(f"network realtime {case} at {rate_hz:g}/s, {rounds} x ({part_s:g} s loop, then {part_s:g} s "
+    progress(f"network realtime {case} at {rate_hz:g}/s, {rounds} x ({round_s:g} s loop, then {round_s:g} s "
              f"fan-out ping-pong, with {' and '.join(kinds)} controllers and echoes)")
     pings, loops = {kind: [] for kind in kinds}, {kind: [] for kind in kinds}
     for index in range(1, rounds + 1):
         for kind in kinds:
             run = network_loop(env, log_root / f"net_realtime_{case}_{kind}_{index}", case, "realtime", rate_hz,
-                               part_s, kind)
+                               round_s, kind)
             loops[kind].append(run)
             pings[kind].append(pingpong(env, log_root / f"fanout_timed_{case}_{kind}_{index}", "timed",
-                                        rate_hz=rate_hz, duration_s=part_s, fanout=run["size"],
+                                        rate_hz=rate_hz, duration_s=round_s, fanout=run["size"],
                                         composed=kind == "composed"))
     namespaces = list(loops["separate"][0]["summary"])
     generators = []
@@ -59,7 +58,7 @@ def measure_network_realtime(env, log_root: Path, case: str, rate_hz: float, dur
     memory.update({f"{kind}_cpu": [share for run in loops[kind] for share in run["cpu_share"]] for kind in kinds})
     memory.update({f"{kind}_echo_kib": [kib for ping in pings[kind] for kib in ping["echo_rss_kib"]] for kind in kinds})
     return {"case": case, "generators": generators, "size": len(namespaces), "rate_hz": rate_hz,
-            "duration_s": duration_s, "rounds": rounds, "kinds": kinds, "memory": memory}
+            "round_s": round_s, "rounds": rounds, "kinds": kinds, "memory": memory}
 
 
 def network_realtime_section(result: dict) -> list[str]:
@@ -68,8 +67,8 @@ def network_realtime_section(result: dict) -> list[str]:
         return ["## 5. Network realtime (issue 14)", "", f"**Not completed**: {result['error']}", ""]
     kinds, gens = result["kinds"], result["generators"]
     lines = [f"## 5. Network realtime at {result['rate_hz']:g} frames/s, {result['size']} controllers (issue 14)", "",
-             f"`{result['case']}` in realtime (the PMU grid on the wall clock) for {result['duration_s']:g} s per "
-             f"deployment, as {result['rounds']} alternating round(s): the loop with separate controller "
+             f"`{result['case']}` in realtime (the PMU grid on the wall clock), per deployment {result['rounds']} "
+             f"alternating round(s) of {result['round_s']:g} s: the loop with separate controller "
              "processes, then the timed fan-out ping-pong to "
              f"{result['size']} echo processes at the same rate; the loop with the controllers composed in one "
              "process (`composed_controllers`), then the fan-out to as many echo nodes composed in one process "
