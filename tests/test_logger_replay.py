@@ -220,9 +220,11 @@ def test_diagnostics_are_on_the_absolute_topic_and_name_their_generator(two_gene
 
 
 def test_replay_republishes_the_recording_unchanged():
-    # Half speed: the lockstep recording bursts at ~400 samples/s per topic, which a Python probe
-    # on a loaded machine must take before its KEEP_LAST 100 queue overflows.
-    recording, rate = RECORDINGS / "paper_b0.3.mcap", 0.5
+    # Quarter speed: the lockstep recording bursts at ~700 samples/s per topic (2,500 messages in
+    # 0.72 s); at half speed a loaded 2-core machine once fell 0.2 s behind over the playback (the
+    # replay and the Python probe CPU-bound), at a quarter the probe keeps up and the bounds below
+    # still judge the pacing.
+    recording, rate = RECORDINGS / "paper_b0.3.mcap", 0.25
     expected = defaultdict(list)
     for record in read_messages(recording):
         expected[record.topic].append(record)

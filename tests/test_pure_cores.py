@@ -43,9 +43,7 @@ ROS_SIDE = {
     "nni_msgs_adapter.recording.replay_rerun": "--rrd/--connect/--spawn, on replay_load",
     "nni_msgs_adapter.recording.replay_c37118": "--pmu-server, on replay_load",
     # The demos start no node of their own, but read the nodes' output lines by the nodes' own constants.
-    "nni_battery_controller.demo_command": "nni-demo's entry, dispatching to the demos",
     "nni_battery_controller.demo_common": "the nodes' summary and count line prefixes",
-    "nni_battery_controller.demo_viewer": "the Rerun bridge's progress lines",
     "nni_battery_controller.smib_demo": "the demo, on demo_common",
     "nni_battery_controller.network_demo": "the network demo, on demo_common",
 }

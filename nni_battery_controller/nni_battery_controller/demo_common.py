@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX
+from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX, SUBSCRIBED_PREFIX
 from nni_msgs_adapter.recording.runs import GeneratorRun
+from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.cli_support import CliError, write_json
 from nni_msgs_adapter.ros.command_auth import KEY_FILE_ENV, remove_key_file
 from nni_msgs_adapter.ros.processes import ChildError
@@ -175,6 +176,35 @@ def finish_plant(procs, plant, args, label: str, prefix: str = SUMMARY_PREFIX, w
     if status != 0:
         raise CliError(f"the {plant.name} exited with status {status}: {plant.tail()}")
     time.sleep(DRAIN_S)
+
+
+#: Longest wait, s, for the logger to subscribe to every controller's topics before the plant starts.
+RECORDER_WAIT_S = 120.0
+#: Each controller's topics the logger must record from the first sample on (the plant's it waits for itself).
+CONTROLLER_TOPICS = (contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE)
+
+
+def wait_for_recorder(logger, spaces, logs: Path) -> None:
+    """Wait until the logger has subscribed to every controller's topics (else CliError naming those it has not).
+
+    ``spaces``: the controllers' namespaces (``[""]``: the SMIB's one, at the root).
+    The plant waits for the logger and the controllers on each ``pmu``, not for the logger to have
+    found the controllers' writers: with the composed deployment's one participant of many endpoints,
+    under load, the logger once found /gen3's and /gen4's only after 70 samples (recording 27 of 100
+    commands), and the SMIB's logger once recorded none of its controller's 500 (a lockstep run over
+    before it subscribed, beside a loaded suite): the plant starts only once these subscriptions exist.
+    """
+    wanted = {"/" + "/".join(filter(None, (ns, topic))) for ns in spaces for topic in CONTROLLER_TOPICS}
+    deadline = time.monotonic() + RECORDER_WAIT_S
+    while True:
+        missing = wanted - {line.split(SUBSCRIBED_PREFIX, 1)[1].strip() for line in logger.output().splitlines()
+                            if SUBSCRIBED_PREFIX in line}
+        if not missing:
+            return
+        if logger.poll() is not None or time.monotonic() > deadline:
+            raise CliError(f"the logger did not subscribe to {len(missing)} controller topic(s) within "
+                           f"{RECORDER_WAIT_S:g} s ({', '.join(sorted(missing)[:3])} ...; logs in {logs})")
+        time.sleep(0.05)
 
 
 def run_time_limit_s(args) -> float:

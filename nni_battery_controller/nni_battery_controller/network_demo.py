@@ -45,6 +45,7 @@ from nni_battery_controller.demo_common import (
     run_environment,
     software_version,
     start_when_read_back,
+    wait_for_recorder,
     write_summary,
 )
 from nni_battery_controller.demo_pmu import StreamWatch, add_pmu_options, stream_parameters, wait_text
@@ -79,7 +80,6 @@ from nni_battery_controller.network_deployment import (
     start_controllers,
 )
 from nni_battery_controller.network_sim import ANGLE_REFERENCES, NetworkLaw, assess_network
-from nni_msgs_adapter.recording.mcap_logger import SUBSCRIBED_PREFIX
 from nni_msgs_adapter.recording.runs import network_trajectory, read_generator_runs
 from nni_msgs_adapter.c37118.cli import summary_line
 from nni_msgs_adapter.ros import contract
@@ -101,10 +101,6 @@ from nni_plant_sim.network_plant_node import SUMMARY_PREFIX, parameters as plant
 
 PROG = "nni-demo"
 PLANT = "nni_plant_sim.network_plant_node"
-#: Longest wait, s, for the logger to subscribe to every controller's topics before the plant starts.
-RECORDER_WAIT_S = 120.0
-#: Each controller's topics the logger must record from the first sample on (the plant's it waits for itself).
-CONTROLLER_TOPICS = (contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE)
 #: (option dest, NetworkLaw field) of each gain.
 GAINS = (("tau", "tau_s"), ("gain_k", "gain_k"), ("gain_l", "gain_l"), ("alpha", "alpha"))
 #: The plant's counters shown per generator: the trust counters (any non-zero one compromises a run) and
@@ -272,27 +268,6 @@ def wait_for_bridge(bridge, index: int, runs: dict, logs: Path) -> None:
         short = ", ".join(f"{ns} {got.get(ns, 0)} of {n}" for ns, n in expected.items() if got.get(ns, 0) < n)
         raise CliError(f"the Rerun stream is partial: the bridge logged {short} samples of run {index} within "
                        f"{BRIDGE_WAIT_S:g} s (logs in {logs})") from None
-
-
-def wait_for_recorder(logger, spaces, logs: Path) -> None:
-    """Wait until the logger has subscribed to every controller's topics (else CliError naming those it has not).
-
-    The plant waits for the logger and the controllers on each ``pmu``, not for the logger to have
-    found the controllers' writers: with the composed deployment's one participant of many endpoints,
-    under load, the logger once found /gen3's and /gen4's only after 70 samples (recording 27 of 100
-    commands), so the plant starts only once these subscriptions exist.
-    """
-    wanted = {f"/{ns}/{topic}" for ns in spaces for topic in CONTROLLER_TOPICS}
-    deadline = time.monotonic() + RECORDER_WAIT_S
-    while True:
-        missing = wanted - {line.split(SUBSCRIBED_PREFIX, 1)[1].strip() for line in logger.output().splitlines()
-                            if SUBSCRIBED_PREFIX in line}
-        if not missing:
-            return
-        if logger.poll() is not None or time.monotonic() > deadline:
-            raise CliError(f"the logger did not subscribe to {len(missing)} controller topic(s) within "
-                           f"{RECORDER_WAIT_S:g} s ({', '.join(sorted(missing)[:3])} ...; logs in {logs})")
-        time.sleep(0.05)
 
 
 def run_one(args, b: float, env: dict, bridge=None, index: int = 1):

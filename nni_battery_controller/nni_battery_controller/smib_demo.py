@@ -48,6 +48,7 @@ from nni_battery_controller.demo_common import (
     run_environment,
     software_version,
     start_when_read_back,
+    wait_for_recorder,
     write_summary,
 )
 from nni_battery_controller.demo_pmu import StreamWatch, add_pmu_options, stream_parameters, wait_text
@@ -63,6 +64,7 @@ from nni_battery_controller.options import PAPER_BATTERY_LIMITS, add_model_optio
 from nni_battery_controller.simulate import Trajectory
 from nni_battery_controller.verdicts import assess, verdict_text
 from nni_msgs_adapter.c37118.cli import summary_line
+from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,
@@ -197,6 +199,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
             "run_metadata": json.dumps(run_metadata(args, plant_params, controller_params))})
         controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params,
                                       env=key_environment(key))
+        wait_for_recorder(logger, [""], logs)
         plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params, env=key_environment(key))
         watch = StreamWatch(plant) if args.stream else None
         where = watch.listening() if watch is not None else None
@@ -213,6 +216,8 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
     counts = logger_counts(logger.output())
     summary = plant_summary(plant.output())
     check_complete(recording, counts.get("/pmu", 0), int(summary["measurements"]), logs)
+    check_complete(recording, counts.get(f"/{contract.TOPIC_BATTERY_COMMAND}", 0), int(summary["commands"]), logs,
+                   " from the controller", "battery commands the plant received")
     run = read_generator_run(recording)
     if bridge is not None:
         wait_for_bridge(bridge, index, run, logs)
