@@ -19,7 +19,7 @@ from pathlib import Path
 
 from nni_msgs_adapter.ros.cli_support import CliError, writable_output
 from nni_msgs_adapter.ros.processes import ChildError, Supervisor
-from nni_msgs_adapter.viewing.bridge_protocol import READY_TEXT, display_missing
+from nni_msgs_adapter.viewing.bridge_protocol import READY_TEXT, URL_TEXT, display_missing
 
 #: Seconds the Rerun bridge gets, once the run's recording is read, to report every one of its samples.
 BRIDGE_WAIT_S = 30.0
@@ -67,7 +67,7 @@ def start_viewer(viewer: Supervisor, sink: dict, f0_hz: float, **network):
         proxy = f"rerun+http://{host}:{SERVE_GRPC_PORT}/proxy"
         params = {"sink": "connect", "url": proxy, "f0_hz": f0_hz, **network}
         wait_for_port(viewer["rerun_viewer"], host, SERVE_GRPC_PORT)
-        print(f"Rerun web viewer: http://{host}:{SERVE_WEB_PORT}/?url={urllib.parse.quote(proxy, safe='')}",
+        print(f"{URL_TEXT} http://{host}:{SERVE_WEB_PORT}/?url={urllib.parse.quote(proxy, safe='')}",
               flush=True)
     bridge = viewer.start_node("rerun_bridge", "nni_msgs_adapter.viewing.rerun_bridge", params)
     try:

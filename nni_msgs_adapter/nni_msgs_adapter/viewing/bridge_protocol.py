@@ -14,7 +14,7 @@ import sys
 READY_TEXT = "rerun bridge ready"
 #: Printed (then a JSON object) whenever a run's logged sample count changes.
 PROGRESS_PREFIX = "rerun bridge run: "
-#: Logged before the web viewer's URL (sink serve).
+#: Before the web viewer's URL: the bridge logs it (sink serve), nni-demo --rerun serve prints it.
 URL_TEXT = "Rerun web viewer:"
 
 
