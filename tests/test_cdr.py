@@ -194,3 +194,25 @@ def test_the_plants_end_of_run_is_read_from_diagnostics_bytes_of_its_own_namespa
     assert not contract.plant_run_ended(status("/gen1/controller", "controller", None), "/gen1")
     assert contract.plant_run_ended(status("/plant", "plant", True), "/")
     assert not contract.plant_run_ended(b"gen1/plant True" + bytes(40), "/gen1")
+
+
+def test_a_network_plants_statuses_in_one_array_say_which_generators_run_ended(monkeypatch):
+    """The network plant sends every generator's status in one DiagnosticArray: the end of the run is read for the
+    controller's own generator only, and a ``True`` of another key (or of another generator) is not its end. Bytes
+    where no run_ended is True are not deserialised (every controller reads every array, every second)."""
+    from rclpy.serialization import serialize_message
+
+    deserialised = []
+    real = contract._deserialised
+    monkeypatch.setattr(contract, "_deserialised", lambda *args: deserialised.append(1) or real(*args))
+
+    def array(ended: dict) -> bytes:
+        statuses = [("plant", f"/gen{i}/plant", "OK", "running",
+                     {"samples": 500, "paired": True, contract.RUN_ENDED: ended.get(i, False), "x": "True"})
+                    for i in (1, 2, 11)]
+        return serialize_message(contract.diagnostics_array(1, statuses))
+
+    assert [contract.plant_run_ended(array({}), f"/gen{i}") for i in (1, 2, 11)] == [False] * 3
+    assert not deserialised
+    assert [contract.plant_run_ended(array({11: True}), f"/gen{i}") for i in (1, 2, 11)] == [False, False, True]
+    assert [contract.plant_run_ended(array({1: True, 2: True, 11: True}), f"/gen{i}") for i in (1, 2, 11)] == [True] * 3

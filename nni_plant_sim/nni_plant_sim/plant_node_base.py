@@ -282,13 +282,13 @@ class PlantNodeBase(LoopNode):
                 for i, (label, channel) in enumerate(zip(self._labels, self._channels))]
 
     def publish_diagnostics(self) -> list[dict]:
-        """One status per generator (``plant``, namespaced by its hardware_id); returns their values."""
+        """One status per generator (``plant``, namespaced by its hardware_id), all in one message; their values."""
         generators = self._generator_values()
-        for ns, channel, values in zip(self.namespaces, self._channels, generators):
-            self.publish_status("plant", *channel.health(self._loop is not None, self._wait.text), values,
-                                f"/{ns}/plant" if ns else "")
+        statuses = [("plant", *channel.health(self._loop is not None, self._wait.text), values, f"/{ns}/plant" if ns else "")
+                    for ns, channel, values in zip(self.namespaces, self._channels, generators)]
         if self._stream is not None:
-            self.publish_status("c37118_server", *self._stream.status())
+            statuses.append(("c37118_server", *self._stream.status(), ""))
+        self.publish_statuses(statuses)
         return generators
 
     def close(self) -> None:

@@ -392,7 +392,13 @@ def invariant_set_message(stamp_ns: int, boundary) -> PolygonStamped:
 
 def diagnostics_message(stamp_ns: int, name: str, hardware_id: str, level: str, message: str,
                         values: dict) -> DiagnosticArray:
-    """One DiagnosticStatus in a DiagnosticArray for ``/diagnostics``; ``values`` become KeyValue strings.
+    """One DiagnosticStatus in a DiagnosticArray for ``/diagnostics`` (:func:`diagnostics_array` of one)."""
+    return diagnostics_array(stamp_ns, [(name, hardware_id, level, message, values)])
+
+
+def diagnostics_array(stamp_ns: int, statuses) -> DiagnosticArray:
+    """A DiagnosticArray for ``/diagnostics`` of ``statuses``, each ``(name, hardware_id, level, message, values)``;
+    ``values`` become KeyValue strings.
 
     ``level`` names a DiagnosticStatus constant (``"OK"``, ``"WARN"``, ``"ERROR"``), as the
     rclpy-free cores give it.
@@ -401,13 +407,14 @@ def diagnostics_message(stamp_ns: int, name: str, hardware_id: str, level: str, 
     prefixes the status name (``gen1/plant``), so that the statuses of several generators on the
     one absolute topic stay apart (:func:`split_status_name` reads it back).
     """
-    namespace = hardware_id.rpartition("/")[0].strip("/")
-    status = DiagnosticStatus(level=getattr(DiagnosticStatus, level), name=f"{namespace}/{name}" if namespace else name,
-                              message=message, hardware_id=hardware_id)
-    status.values = [KeyValue(key=key, value=_format_value(value)) for key, value in values.items()]
     msg = DiagnosticArray()
     msg.header.stamp = time_from_ns(stamp_ns)
-    msg.status = [status]
+    for name, hardware_id, level, message, values in statuses:
+        namespace = hardware_id.rpartition("/")[0].strip("/")
+        status = DiagnosticStatus(level=getattr(DiagnosticStatus, level), message=message, hardware_id=hardware_id,
+                                  name=f"{namespace}/{name}" if namespace else name)
+        status.values = [KeyValue(key=key, value=_format_value(value)) for key, value in values.items()]
+        msg.status.append(status)
     return msg
 
 
@@ -437,20 +444,40 @@ def plant_run_ended(data: bytes, namespace: str) -> bool:
     stand-down for the silence that follows it directly (the next measurement cancels it); the
     battery still goes to zero through the plant's own command timeouts.
 
-    Deserialised only when the bytes hold both the status name and ``True`` (CDR strings are
-    their UTF-8 bytes, so a message without either says nothing here): every controller hears
-    every status of the loop, and a composed process of 52 controllers spent 29 % of its time
-    converting them to Python messages (py-spy, kundur_ring_52 in lockstep).
+    Deserialised only when the bytes hold the status name and a ``run_ended`` key whose value is
+    ``True`` (:func:`_holds_run_ended`): every controller hears every status of the loop (a
+    network plant's in one array), and a composed process of 52 controllers spent 29 % of its
+    time converting them to Python messages (py-spy, kundur_ring_52 in lockstep).
     """
     namespace = namespace.strip("/")
     name = f"{namespace}/plant" if namespace else "plant"
-    if name.encode() not in data or b"True" not in data:
+    if name.encode() not in data or not _holds_run_ended(data):
         return False
     try:
         values = diagnostic_values(_deserialised(data, DiagnosticArray), name)
     except ContractError:
         return False
     return values is not None and values.get(RUN_ENDED) == "True"
+
+
+#: A KeyValue's key ``run_ended`` in CDR: the string's bytes and its NUL (its length word precedes them).
+_RUN_ENDED_KEY = RUN_ENDED.encode() + b"\x00"
+#: Its value ``True`` in CDR, little and big endian: the length word (5, with the NUL), the bytes, the NUL.
+_TRUE_VALUE = {b"\x00\x01": (5).to_bytes(4, "little") + b"True\x00", b"\x00\x00": (5).to_bytes(4, "big") + b"True\x00"}
+
+
+def _holds_run_ended(data: bytes) -> bool:
+    """Whether CDR bytes hold a ``run_ended`` key followed by the value ``True`` (a string aligned to 4 bytes
+    from the payload's start, after the 4-byte encapsulation header): a necessary condition, read in place."""
+    value = _TRUE_VALUE.get(data[:2])
+    start = data.find(_RUN_ENDED_KEY) if value is not None else -1
+    while start >= 0:
+        end = start + len(_RUN_ENDED_KEY)
+        at = end + (-(end - 4)) % 4
+        if data[at:at + len(value)] == value:
+            return True
+        start = data.find(_RUN_ENDED_KEY, end)
+    return False
 
 
 def _format_value(value) -> str:
