@@ -207,9 +207,9 @@ def test_a_network_plants_statuses_in_one_array_say_which_generators_run_ended(m
     monkeypatch.setattr(contract, "_deserialised", lambda *args: deserialised.append(1) or real(*args))
 
     def array(ended: dict) -> bytes:
-        statuses = [("plant", f"/gen{i}/plant", "OK", "running",
-                     {"samples": 500, "paired": True, contract.RUN_ENDED: ended.get(i, False), "x": "True"})
-                    for i in (1, 2, 11)]
+        statuses = [("plant", "OK", "running",
+                     {"samples": 500, "paired": True, contract.RUN_ENDED: ended.get(i, False), "x": "True"},
+                     f"/gen{i}/plant") for i in (1, 2, 11)]
         return serialize_message(contract.diagnostics_array(1, statuses))
 
     assert [contract.plant_run_ended(array({}), f"/gen{i}") for i in (1, 2, 11)] == [False] * 3

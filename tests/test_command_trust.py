@@ -131,11 +131,12 @@ def test_attack_1_a_rogue_from_before_the_run_flooding_and_racing_never_reaches_
             flooding.join()
             rogue.close()
             probe.close()
-    assert_in_synchronism_on_its_controllers_commands(probe, summary_of(plant), 150)
+    final = summary_of(plant)
+    assert_in_synchronism_on_its_controllers_commands(probe, final, 150)
     assert errors, "diagnostics at ERROR"
     # The plant pairs a writer only while it is the one it sees: under load it has seen the rogue (there before it)
     # alone, or both at once (no pairing). Every writer not paired is alarmed; the seal decides what is applied.
-    paired = summary_of(plant)["paired_controller"]
+    paired = final["paired_controller"]
     assert paired in ("", "/controller", "/rogue")
     for foreign in {"/controller", "/rogue"} - {paired}:
         assert f"foreign writer {foreign}" in plant.output()

@@ -393,12 +393,12 @@ def invariant_set_message(stamp_ns: int, boundary) -> PolygonStamped:
 def diagnostics_message(stamp_ns: int, name: str, hardware_id: str, level: str, message: str,
                         values: dict) -> DiagnosticArray:
     """One DiagnosticStatus in a DiagnosticArray for ``/diagnostics`` (:func:`diagnostics_array` of one)."""
-    return diagnostics_array(stamp_ns, [(name, hardware_id, level, message, values)])
+    return diagnostics_array(stamp_ns, [(name, level, message, values, hardware_id)])
 
 
 def diagnostics_array(stamp_ns: int, statuses) -> DiagnosticArray:
-    """A DiagnosticArray for ``/diagnostics`` of ``statuses``, each ``(name, hardware_id, level, message, values)``;
-    ``values`` become KeyValue strings.
+    """A DiagnosticArray for ``/diagnostics`` of ``statuses``, each ``(name, level, message, values, hardware_id)``
+    (the order of :meth:`.loop_node.LoopNode.publish_status`); ``values`` become KeyValue strings.
 
     ``level`` names a DiagnosticStatus constant (``"OK"``, ``"WARN"``, ``"ERROR"``), as the
     rclpy-free cores give it.
@@ -409,7 +409,7 @@ def diagnostics_array(stamp_ns: int, statuses) -> DiagnosticArray:
     """
     msg = DiagnosticArray()
     msg.header.stamp = time_from_ns(stamp_ns)
-    for name, hardware_id, level, message, values in statuses:
+    for name, level, message, values, hardware_id in statuses:
         namespace = hardware_id.rpartition("/")[0].strip("/")
         status = DiagnosticStatus(level=getattr(DiagnosticStatus, level), message=message, hardware_id=hardware_id,
                                   name=f"{namespace}/{name}" if namespace else name)

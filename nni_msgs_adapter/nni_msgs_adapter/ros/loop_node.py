@@ -77,7 +77,7 @@ class LoopNode(Node):
         held its thread 6-70 ms a second)."""
         own = self.get_fully_qualified_name()
         self._diagnostics.publish(contract.diagnostics_array(
-            self.now_ns(), [(name, hardware_id or own, level, message, values)
+            self.now_ns(), [(name, level, message, values, hardware_id or own)
                             for name, level, message, values, hardware_id in statuses]))
 
     def close(self) -> None:
