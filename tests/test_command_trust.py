@@ -97,13 +97,28 @@ def flood(rogue, stop: threading.Event, power_pu: float = 5.0) -> threading.Thre
     return thread
 
 
-def assert_in_synchronism_on_its_controllers_commands(probe, final, samples: int):
-    """The run flagged, and the battery served its controller: most samples applied its (non-zero) power, never
-    beyond b, and the rotor angle stayed within a radian of its equilibrium."""
+def assert_in_synchronism_on_its_controllers_commands(probe, final, samples: int, margin_s: float = 0.2):
+    """The run flagged, and the battery served its controller: while the probe read the controller's (sealed)
+    commands, every non-zero power applied was one of them, and most samples applied one; never beyond b, and the rotor angle stayed within a radian of its equilibrium.
+
+    (The share of non-zero samples is not 80 % on a loaded machine: 127 of 166 once, answers expiring or timing out.)
+    """
     states = [contract.plant_state_from_message(m) for m in probe.take(contract.TOPIC_PLANT_STATE)]
     assert len(states) >= samples
     assert max(abs(state[3]) for state in states) <= B + 1e-12, "the battery never exceeded b"
-    assert sum(1 for state in states if state[3] != 0.0) > 0.8 * len(states), "the controller's commands applied"
+    sealed = [contract.command_from_message(m) for m in probe.take(contract.TOPIC_BATTERY_COMMAND)
+              if contract.command_seal(m) is not None]
+    assert sealed, "the probe saw the controller's commands"
+    controllers = {min(max(power, -B), B) for _, power in sealed}
+    # The states between the first and the last of the controller's commands the probe read (discovery and the
+    # probe's own backlog at close cut both ends). Realtime, a power in force answers a measurement up to
+    # command_timeout_s (0.1 s) before the state (margin_s 0.2 s); lockstep, the sample's own (0.05 s: two samples).
+    first = max(min(stamp for stamp, _ in sealed), states[0][0]) + margin_s * 1e9
+    last = max(stamp for stamp, _ in sealed)
+    served = [state[3] for state in states if first < state[0] <= last]
+    assert len(served) >= samples // 2
+    assert {power for power in served if power != 0.0} <= controllers, "only the controller's commands applied"
+    assert sum(1 for power in served if power != 0.0) > 0.5 * len(served), "the controller's commands applied"
     assert max(abs(state[1] - DELTA_BAR) for state in states) < 1.0, "the machine stayed in synchronism"
     assert final["unauthenticated_commands"] > 0 and final["writer_alarms"] >= 1, "the run is flagged"
     assert final["foreign_commands"] == 0 and final["max_abs_applied_power_pu"] <= B + 1e-12
@@ -116,7 +131,8 @@ def test_attack_1_a_rogue_from_before_the_run_flooding_and_racing_never_reaches_
     stop = threading.Event()
     with node_processes(tmp_path, domain) as start:
         # The probe reads pmu too, so that the plant's run waits for it (under load it matched 3 s into a 4 s run).
-        probe = Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_DIAGNOSTICS, contract.TOPIC_PMU))
+        probe = Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_DIAGNOSTICS, contract.TOPIC_PMU,
+                               contract.TOPIC_BATTERY_COMMAND))
         rogue = Rogue(domain, answer=contract.TOPIC_PMU)
         flooding = flood(rogue, stop)
         try:
@@ -148,7 +164,7 @@ def test_attack_2_a_rogue_racing_the_controller_on_each_measurement_is_never_app
     also replays each sealed command it sees (a captured command sent again is refused)."""
     domain = fresh_domain_id()
     with node_processes(tmp_path, domain) as start:
-        probe = Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_DIAGNOSTICS))
+        probe = Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_DIAGNOSTICS, contract.TOPIC_BATTERY_COMMAND))
         try:
             start("controller", CONTROLLER, {"battery_limit_pu": B})
             plant = start("plant", PLANT, {"mode": "realtime", "duration_s": 6.0, "wait_for_subscribers": 1,
@@ -158,7 +174,7 @@ def test_attack_2_a_rogue_racing_the_controller_on_each_measurement_is_never_app
             contract.subscribe(rogue.node, contract.TOPIC_BATTERY_COMMAND, lambda msg: rogue.publish(
                 contract.TOPIC_BATTERY_COMMAND, msg) if contract.command_seal(msg) is not None else None)
             try:
-                assert rogue.matched(contract.TOPIC_BATTERY_COMMAND)
+                assert rogue.wait_matched(contract.TOPIC_BATTERY_COMMAND, 2, 10.0), "the plant and the probe"
                 assert wait_until(lambda: rogue.answered >= 20, 5.0), "the rogue did answer"
                 assert plant.wait(timeout=30.0) == 0
             finally:
@@ -178,14 +194,15 @@ def test_attack_2_lockstep_a_rogue_answering_clock_before_the_measurement_is_nev
     """
     domain = fresh_domain_id()
     with node_processes(tmp_path, domain) as start:
-        probe = Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_PMU, contract.TOPIC_DIAGNOSTICS))
+        probe = Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_PMU, contract.TOPIC_DIAGNOSTICS,
+                               contract.TOPIC_BATTERY_COMMAND))
         rogue = Rogue(domain, answer=contract.TOPIC_CLOCK)
         try:
             start("controller", CONTROLLER, {"battery_limit_pu": B})
             plant = start("plant", PLANT, {"mode": "lockstep", "duration_s": 0.0, "wait_for_subscribers": 3,
                                            "lockstep_timeout_s": 0.02, "battery_rating_pu": B,
                                            "hold_until_released": True})
-            assert rogue.matched(contract.TOPIC_BATTERY_COMMAND, timeout=60.0)
+            assert rogue.wait_matched(contract.TOPIC_BATTERY_COMMAND, 2, 60.0), "the plant and the probe"
             # Before the run a command answers nothing: dropped, counted and raised all the same.
             rogue.publish(contract.TOPIC_BATTERY_COMMAND, contract.command_message(0, 5.0))
             assert wait_until(lambda: any("unauthenticated command dropped" in text for text in plant_errors(probe)),
@@ -198,7 +215,7 @@ def test_attack_2_lockstep_a_rogue_answering_clock_before_the_measurement_is_nev
             probe.close()
     final = summary_of(plant)
     assert final["samples"] >= 20
-    assert_in_synchronism_on_its_controllers_commands(probe, final, 20)
+    assert_in_synchronism_on_its_controllers_commands(probe, final, 20, margin_s=0.05)
 
 
 def test_attack_4_one_far_future_measurement_does_not_lock_the_controller_out(tmp_path):
