@@ -99,7 +99,8 @@ def flood(rogue, stop: threading.Event, power_pu: float = 5.0) -> threading.Thre
 
 def assert_in_synchronism_on_its_controllers_commands(probe, final, samples: int, margin_s: float = 0.2):
     """The run flagged, and the battery served its controller: while the probe read the controller's (sealed)
-    commands, every non-zero power applied was one of them, and most samples applied one; never beyond b, and the rotor angle stayed within a radian of its equilibrium.
+    commands, every non-zero power applied was one of them, and most samples applied one; never beyond b, and the
+    rotor angle stayed within a radian of its equilibrium.
 
     (The share of non-zero samples is not 80 % on a loaded machine: 127 of 166 once, answers expiring or timing out.)
     """
