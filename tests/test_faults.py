@@ -198,6 +198,9 @@ def test_stale_data_zero_power_then_clean_resume(tmp_path):
             time.sleep(1.2)  # > 5 periods (0.1 s), and a diagnostics period
             after_gap = probe.take(contract.TOPIC_BATTERY_COMMAND)[n_commands:]
             assert [contract.command_from_message(m)[1] for m in after_gap] == [0.0], "one zero command"
+            # Stamped when the silence was noticed: never before 5 periods, and not a second watchdog period late.
+            noticed_after_ns = contract.command_from_message(after_gap[0])[0] - (stamp - 20_000_000)
+            assert 100_000_000 <= noticed_after_ns < 190_000_000
             statuses = [contract.diagnostic_values(m, "controller") is not None and m.status[0].message
                         for m in probe.take(contract.TOPIC_DIAGNOSTICS)]
             assert "STALE" in statuses

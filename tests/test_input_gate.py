@@ -77,6 +77,20 @@ def test_duplicates_never_reanchor():
     assert [g.check(NOW, 0.9, 0.0, NOW, NOW) for _ in range(5)] == [Verdict.DUPLICATE] * 5
 
 
+def test_the_silence_watchdog_is_due_just_past_the_gap_after_the_last_measurement():
+    """The node's watchdog fires when :meth:`InputGate.silence` would first start the episode, else every gap."""
+    g = gate()
+    assert g.silence_check_in_ns(NOW) == 100 * MS, "nothing heard yet: check again a gap on"
+    g.check(NOW, 0.9, 0.0, NOW, NOW + 3)
+    due_in = g.silence_check_in_ns(NOW + 30 * MS)
+    assert due_in == 70 * MS + 4
+    assert g.silence(NOW + 30 * MS + due_in - 1) is None and g.silence(NOW + 30 * MS + due_in) is not None
+    assert g.silence_check_in_ns(NOW + 200 * MS) == 100 * MS, "stale already: a gap on"
+    fresh = gate()
+    fresh.check(NOW, 0.9, 0.0, NOW, NOW)
+    assert fresh.silence_check_in_ns(NOW + 500 * MS) == 100 * MS, "overdue (stood down): a gap on"
+
+
 def test_silence_is_one_stale_episode_with_a_zero_stamped_after_the_last_measurement():
     g = gate()
     assert g.silence(NOW) is None, "nothing heard yet: nothing to stand down from"

@@ -103,6 +103,15 @@ class InputGate:
         self.counts["stale_episodes"] += 1
         return self.last_stamp_ns + wall_ns - self.last_arrival_ns
 
+    def silence_check_in_ns(self, wall_ns: int) -> int:
+        """From ``wall_ns``, how long until :meth:`silence` would start a stale episode: just past ``gap_ns`` after
+        the last accepted measurement, or ``gap_ns`` while there is none to watch (none yet, stale already, or
+        overdue: the caller stood down)."""
+        if self.stale or self.last_arrival_ns is None:
+            return self.gap_ns
+        due_in = self.last_arrival_ns + self.gap_ns + 1 - wall_ns
+        return due_in if due_in > 0 else self.gap_ns
+
     def _check(self, stamp_ns: int, delta_rad: float, speed_rad_s: float, reference_ns: int) -> Verdict:
         if not (math.isfinite(delta_rad) and math.isfinite(speed_rad_s)):
             return self._count(Verdict.NON_FINITE)
