@@ -138,6 +138,7 @@ def test_attack_1_a_rogue_from_before_the_run_flooding_and_racing_never_reaches_
         flooding = flood(rogue, stop)
         try:
             start("controller", CONTROLLER, {"battery_limit_pu": B})
+            assert probe.wait_for_publishers(contract.TOPIC_BATTERY_COMMAND, 2, 60.0), "the controller and the rogue"
             plant = start("plant", PLANT, {"mode": "realtime", "duration_s": 4.0, "wait_for_subscribers": 3,
                                            "battery_rating_pu": B})
             assert plant.wait(timeout=60.0) == 0
@@ -168,6 +169,7 @@ def test_attack_2_a_rogue_racing_the_controller_on_each_measurement_is_never_app
         probe = Probe(domain, (contract.TOPIC_PLANT_STATE, contract.TOPIC_DIAGNOSTICS, contract.TOPIC_BATTERY_COMMAND))
         try:
             start("controller", CONTROLLER, {"battery_limit_pu": B})
+            assert probe.wait_for_publishers(contract.TOPIC_BATTERY_COMMAND, 1, 60.0), "the probe reads the controller"
             plant = start("plant", PLANT, {"mode": "realtime", "duration_s": 6.0, "wait_for_subscribers": 1,
                                            "battery_rating_pu": B})
             assert wait_until(lambda: len(probe.take(contract.TOPIC_PLANT_STATE)) > 25, 30.0)
@@ -204,6 +206,8 @@ def test_attack_2_lockstep_a_rogue_answering_clock_before_the_measurement_is_nev
                                            "lockstep_timeout_s": 0.02, "battery_rating_pu": B,
                                            "hold_until_released": True})
             assert rogue.wait_matched(contract.TOPIC_BATTERY_COMMAND, 2, 60.0), "the plant and the probe"
+            # The probe reads the controller's commands (the run can be over in a second: discovery must be done).
+            assert probe.wait_for_publishers(contract.TOPIC_BATTERY_COMMAND, 2, 60.0), "the controller and the rogue"
             # Before the run a command answers nothing: dropped, counted and raised all the same.
             rogue.publish(contract.TOPIC_BATTERY_COMMAND, contract.command_message(0, 5.0))
             assert wait_until(lambda: any("unauthenticated command dropped" in text for text in plant_errors(probe)),
