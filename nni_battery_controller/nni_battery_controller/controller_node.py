@@ -17,7 +17,7 @@ import sys
 from nni_battery_controller.controller_config import ControllerConfig, parameters, prepared
 from nni_battery_controller.controller_core import ControllerCore
 from nni_msgs_adapter.ros import command_auth, contract
-from nni_msgs_adapter.ros.loop_node import LoopNode, StampedPublisher
+from nni_msgs_adapter.ros.loop_node import LoopNode, PolledReader, StampedPublisher
 from nni_msgs_adapter.ros.node_main import run_node
 
 
@@ -36,7 +36,7 @@ class ControllerNode(LoopNode):
         ControllerCore.warm_up(config)
         self._pmu_subs = [contract.subscribe(self, config.measurement_topic, lambda data, i=i: self._on_pmu(i, data),
                                              ns, raw=True) for i, ns in enumerate(config.pmu_namespaces)]
-        self._clock_sub = contract.subscribe(self, contract.TOPIC_CLOCK, self._on_clock, raw=True)
+        self._clock_reader = PolledReader(self, contract.TOPIC_CLOCK)  # read at each measurement: no wake of its own
         contract.subscribe(self, contract.TOPIC_DIAGNOSTICS, self._on_diagnostics, raw=True)
         # The silence watchdog, re-armed only when it fires, for the instant the silence since the last accepted
         # measurement would reach stale_after_s. A timer at the sample rate doubled the wake-ups (profiled); one
@@ -53,12 +53,13 @@ class ControllerNode(LoopNode):
 
     def _on_pmu(self, index: int, data: bytes) -> None:
         arrival_ns = self.now_ns()
+        self._read_clock()
         try:
             reading, effort = contract.pmu_from_bytes(data)
         except contract.ContractError:
             reading, effort = None, ()
         answer = self._core.receive(index, reading, effort, self._pmu_subs[index].get_publisher_count(),
-                                    arrival_ns, self._clock_ns, self._clock_sub.get_publisher_count)
+                                    arrival_ns, self._clock_ns, self._clock_reader.get_publisher_count)
         if answer is not None:
             self._command(answer.stamp_ns, answer.power_pu)
             self._states.publish(*answer.signals())
@@ -70,11 +71,14 @@ class ControllerNode(LoopNode):
         else:
             self._commands.publish(stamp_ns, power_pu, self._signer.seal(stamp_ns, power_pu))
 
-    def _on_clock(self, data: bytes) -> None:
-        try:
-            self._clock_ns = contract.clock_from_bytes(data)
-        except contract.ContractError:
-            pass  # no time in it: the stamps stay checked against the last one heard
+    def _read_clock(self) -> None:
+        """The latest /clock heard, if one came since the last measurement."""
+        data = self._clock_reader.latest()
+        if data is not None:
+            try:
+                self._clock_ns = contract.clock_from_bytes(data)
+            except contract.ContractError:
+                pass  # no time in it: the stamps stay checked against the last one heard
 
     def _on_diagnostics(self, data: bytes) -> None:
         if contract.plant_run_ended(data, self.get_namespace()) and self._core.end_of_run():
@@ -83,7 +87,7 @@ class ControllerNode(LoopNode):
 
     def _check_stale(self) -> None:
         now_ns = self.now_ns()
-        stamp_ns = self._core.silence(now_ns, self._clock_sub.get_publisher_count() > 0)
+        stamp_ns = self._core.silence(now_ns, self._clock_reader.get_publisher_count() > 0)
         if stamp_ns is not None:
             self._command(stamp_ns, 0.0)
             self.get_logger().warning(f"no measurement for {self._core.config.stale_after_s:g} s: battery power set to zero")
@@ -96,6 +100,10 @@ class ControllerNode(LoopNode):
 
     def publish_diagnostics(self) -> None:
         self.publish_status("controller", *self._core.status())
+
+    def close(self) -> None:
+        super().close()
+        self._clock_reader.destroy()
 
 
 def main(args=None) -> int:
