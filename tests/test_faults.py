@@ -218,6 +218,40 @@ def test_stale_data_zero_power_then_clean_resume(tmp_path):
             probe.close()
 
 
+def test_in_lockstep_the_controller_checks_each_stamp_against_the_latest_clock_heard(tmp_path):
+    """The controller reads /clock when a measurement comes (no callback of its own): a stamp within
+    stamp_tolerance_s (1 s) of the newest /clock is answered, one 100 s ahead of it is not."""
+    from rosgraph_msgs.msg import Clock
+
+    domain = fresh_domain_id()
+    with node_processes(tmp_path, domain) as start:
+        start("controller", CONTROLLER, {"battery_limit_pu": 0.3, "stale_after_periods": 10000})
+        probe = Probe(domain, (contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_DIAGNOSTICS))
+        try:
+            assert probe.wait_matched(contract.TOPIC_PMU, 1, 30.0) and probe.wait_matched(contract.TOPIC_CLOCK, 1, 30.0)
+
+            def clock(seconds: float) -> None:
+                probe.publish(contract.TOPIC_CLOCK, Clock(clock=contract.time_from_ns(round(seconds * 1e9))))
+                time.sleep(0.3)  # delivered before the measurement that follows
+
+            def answered(seconds: float) -> bool:
+                stamp = round(seconds * 1e9)
+                probe.publish(contract.TOPIC_PMU, contract.pmu_message(stamp, DELTA_BAR, 0.0, 0.0))
+                return answers_for(probe, stamp, timeout=1.5) is not None
+
+            clock(100.0)
+            assert answered(100.02)
+            assert not answered(200.0), "100 s ahead of /clock: implausible"
+            clock(150.0)
+            clock(199.98)
+            assert answered(200.02), "against the newest /clock, not the first one since the last measurement"
+            time.sleep(1.2)
+            counts = [contract.diagnostic_values(m, "controller") for m in probe.take(contract.TOPIC_DIAGNOSTICS)]
+        finally:
+            probe.close()
+    assert int([c for c in counts if c is not None][-1]["implausible_stamp"]) == 1
+
+
 # --- process faults ------------------------------------------------------------------------
 
 
