@@ -184,7 +184,7 @@ def test_the_plants_end_of_run_is_read_from_diagnostics_bytes_of_its_own_namespa
 
     def status(hardware_id: str, name: str, ended) -> bytes:
         values = {"samples": 500, contract.RUN_ENDED: ended} if ended is not None else {"samples": 500}
-        return serialize_message(contract.diagnostics_message(1, name, hardware_id, "OK", "running", values))
+        return serialize_message(contract.diagnostics_message(1, name, "OK", "running", values, hardware_id))
 
     ended = status("/gen1/plant", "plant", True)
     assert contract.plant_run_ended(ended, "/gen1")

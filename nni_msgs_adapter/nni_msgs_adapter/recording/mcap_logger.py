@@ -207,8 +207,8 @@ class McapLogger(Node):
     def _on_failure(self, failure: WriteFailure) -> None:
         """First write failure (any thread): ERROR on /diagnostics at once, then stop the node."""
         self._diag_pub.publish(contract.diagnostics_message(
-            self.get_clock().now().nanoseconds, "mcap_logger", self.get_fully_qualified_name(),
-            "ERROR", str(failure), {"path": str(self.path), "messages_flushed": self._writer.flushed}))
+            self.get_clock().now().nanoseconds, "mcap_logger", "ERROR", str(failure),
+            {"path": str(self.path), "messages_flushed": self._writer.flushed}, self.get_fully_qualified_name()))
         if not self.done.done():
             self.done.set_result(False)
 

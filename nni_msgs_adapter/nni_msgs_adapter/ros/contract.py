@@ -390,9 +390,10 @@ def invariant_set_message(stamp_ns: int, boundary) -> PolygonStamped:
     return msg
 
 
-def diagnostics_message(stamp_ns: int, name: str, hardware_id: str, level: str, message: str,
-                        values: dict) -> DiagnosticArray:
-    """One DiagnosticStatus in a DiagnosticArray for ``/diagnostics`` (:func:`diagnostics_array` of one)."""
+def diagnostics_message(stamp_ns: int, name: str, level: str, message: str, values: dict,
+                        hardware_id: str) -> DiagnosticArray:
+    """One DiagnosticStatus in a DiagnosticArray for ``/diagnostics`` (:func:`diagnostics_array` of one, its
+    arguments in the order of a status there)."""
     return diagnostics_array(stamp_ns, [(name, level, message, values, hardware_id)])
 
 

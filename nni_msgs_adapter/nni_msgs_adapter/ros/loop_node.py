@@ -37,8 +37,8 @@ class PolledReader:
 
     For a value read only when something else happens (the controller's /clock, read at each measurement):
     a subscription would wake the node's executor for every message, and N controllers on a lockstep plant's
-    /clock woke N times a sample more than the fan-out floor's echoes (ieee39 separate, A/B: 0.8-2.0 ms of the
-    controllers' CPU a sample). The reader is rcl's subscription (rclpy's ``_rclpy.Subscription``, which
+    /clock woke N times a sample more than the fan-out floor's echoes (ieee39 separate, alternating A/B: 0.2-2.0 ms
+    of the ten controllers' CPU a sample). The reader is rcl's subscription (rclpy's ``_rclpy.Subscription``, which
     ``Node.create_subscription`` wraps and hands to the executor): it is in the ROS graph under its node,
     matched as any reader, depth 1 (only the latest message is kept), with the topic's reliability and
     durability. :meth:`destroy` it before the node.
