@@ -49,8 +49,8 @@ NNI_REPLAY = Path(sys.executable).parent / "nni-replay"
 RECORDINGS = Path(__file__).resolve().parent.parent / "recordings"
 RATE_HZ = 50.0
 FLUSH_PERIOD_S = logger_defaults()["flush_period_s"]
-# Receive times are taken in two processes (probe, logger) and the flush itself takes time:
-# on a loaded 2-core machine they differ by up to tens of ms; 0.25 s covers that with margin.
+# The logger receives a sample after the plant sent it (its DDS source timestamp) and the flush
+# itself takes time: on a loaded 2-core machine that is up to tens of ms; 0.25 s covers it with margin.
 RECEIVE_SKEW_S = 0.25
 NAMESPACES = {"/gen1": 0.3, "/gen2": math.inf}
 
@@ -61,10 +61,12 @@ def fully_qualified(topic: str, namespace: str = "") -> str:
 
 
 class RawProbe(Probe):
-    """A Probe whose messages are ``(wall receive time ns, CDR bytes as received)``.
+    """A Probe whose messages are ``(writer's source timestamp ns, CDR bytes as received)``.
 
     Raw subscriptions: the bytes are those on the wire, padding included, which a
-    deserialise-serialise round trip would not keep.
+    deserialise-serialise round trip would not keep. The time is the one DDS stamps (wall
+    clock) when the writer sent the sample, so the pacing judged is the writer's: this
+    process's own delays under load (its spin thread preempted) do not enter it.
     """
 
     def __init__(self, domain_id: int, topics):
@@ -76,7 +78,7 @@ class RawProbe(Probe):
 
     def _recorder(self, topic):
         record = super()._recorder(topic)
-        return lambda cdr: record((time.time_ns(), cdr))
+        return lambda cdr, info: record((info["source_timestamp"], cdr))
 
 
 def file_counts(path: Path) -> dict[str, int]:
@@ -97,7 +99,7 @@ def test_sigkill_keeps_every_message_up_to_the_last_flush(tmp_path):
     """Realtime loop at 50 frames/s, logger killed after about 3 s.
 
     What the file yields must be a contiguous prefix of what a subscriber of its own
-    received on plant/state, and every message received more than one flush period
+    received on plant/state, and every message the plant sent more than one flush period
     (plus the receive skew) before the kill must be in it.
     """
     path, domain = tmp_path / "killed.mcap", fresh_domain_id()
@@ -121,7 +123,7 @@ def test_sigkill_keeps_every_message_up_to_the_last_flush(tmp_path):
     lost_times_s = [(kill_ns - t) * 1e-9 for t, _ in received[len(recorded):] if t < kill_ns]
     bound_s = FLUSH_PERIOD_S + RECEIVE_SKEW_S
     print(f"SIGKILL: {len(recorded)} plant states recovered, {len(lost_times_s)} lost "
-          f"(received {max(lost_times_s, default=0.0):.3f} s or less before the kill; bound {bound_s} s)")
+          f"(sent {max(lost_times_s, default=0.0):.3f} s or less before the kill; bound {bound_s} s)")
     assert all(age_s <= bound_s for age_s in lost_times_s), lost_times_s
     assert len(lost_times_s) <= math.ceil(bound_s * RATE_HZ)
     # The recovered part is a usable recording, said to be partial: refused for the viewer unless
@@ -241,9 +243,10 @@ def test_replay_republishes_the_recording_unchanged():
     for topic, messages in received.items():
         records = expected[fully_qualified(topic)]
         assert [cdr for _, cdr in messages] == [r.cdr_bytes for r in records], topic
-    # Original spacing divided by the rate. Idle, each plant state arrives within ~10 ms of its
-    # slot (median ~2 ms); a loaded 2-core machine delays single callbacks by 0.1 s, so the
-    # test bounds the median deviation and the length of the whole playback.
+    # Original spacing divided by the rate, as the replay sent them (source timestamps: the
+    # probe's own delays under load do not count). Idle, each plant state goes out within ~10 ms
+    # of its slot; a loaded 2-core machine delays single timer callbacks by 0.1 s, so the test
+    # bounds the median deviation and the length of the whole playback.
     states, records = received[contract.TOPIC_PLANT_STATE], expected["/" + contract.TOPIC_PLANT_STATE]
     arrival_s = np.array([t - states[0][0] for t, _ in states]) * 1e-9
     slot_s = np.array([r.log_time_ns - records[0].log_time_ns for r in records]) * 1e-9 / rate
