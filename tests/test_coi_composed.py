@@ -198,11 +198,22 @@ def test_a_coi_controller_answers_only_complete_stamps_and_says_what_it_could_no
                 return {kv.key: kv.value for kv in found[-1].values} if found else {}
             assert wait_until(lambda: status().get("coi_untrusted") == "1", 10.0), status()
             assert status()["coi_incomplete"] == "1" and status()["samples"] == "1"
-            # No answer since the first: the watchdog stood down (STALE), its status naming what the coi lacked.
-            messages = " ".join(s.message for m in own.take(contract.TOPIC_DIAGNOSTICS) for s in m.status
-                                if s.hardware_id == "/gen1/controller" and s.level == DiagnosticStatus.STALE)
-            assert messages.startswith("STALE; centre of inertia: coi_") and "coi_incomplete" in messages
-            assert "coi_untrusted" in messages, messages
+            # Each counter is named once, by the first status after it grew. coi_incomplete grew at the answer:
+            # that status is WARN if the 1 Hz tick came within stale_after_s of it, else STALE. coi_untrusted grew
+            # 0.5 s later, with no answer since the first: the watchdog had stood down (STALE) by then.
+            statuses = [(s.level, s.message) for m in own.take(contract.TOPIC_DIAGNOSTICS) for s in m.status
+                        if s.hardware_id == "/gen1/controller"]
+            naming = {name: [(level, text) for level, text in statuses if name in text]
+                      for name in ("coi_incomplete", "coi_untrusted")}
+            assert [len(found) for found in naming.values()] == [1, 1], statuses
+            ((level, text),) = naming["coi_incomplete"]
+            assert (level, text) in ((DiagnosticStatus.WARN, "centre of inertia: coi_incomplete"),
+                                     (DiagnosticStatus.STALE, "STALE; centre of inertia: coi_incomplete"),
+                                     (DiagnosticStatus.STALE,  # no tick until both had grown
+                                      "STALE; centre of inertia: coi_incomplete, coi_untrusted")), statuses
+            ((level, text),) = naming["coi_untrusted"]
+            assert level == DiagnosticStatus.STALE and text.startswith("STALE; centre of inertia: "), statuses
+            assert all(text.startswith("STALE") for level, text in statuses if level == DiagnosticStatus.STALE)
             commands = [contract.command_from_message(m) for m in own.take(contract.TOPIC_BATTERY_COMMAND)]
             answered = {s for s, _ in commands} & {stamp, stamp + 20_000_000, stamp + 40_000_000}
             assert answered == {stamp + 20_000_000}, "nothing answered from a partial or unattributable sample"
