@@ -109,7 +109,7 @@ def start_when_read_back(started: list, plant, logs: Path, key_file=None) -> Non
             if set(passed) <= set(stated):
                 break
             if child.poll() is not None:
-                raise CliError(f"the {child.name} exited with status {child.poll()} before stating its parameters: "
+                raise CliError(f"the {child.name} {child.how_it_ended()} before stating its parameters: "
                                f"{child.tail()}")
             if time.monotonic() > deadline:
                 raise CliError(f"the {child.name} did not state its parameters within {READBACK_WAIT_S:g} s "
@@ -174,7 +174,7 @@ def finish_plant(procs, plant, args, label: str, prefix: str = SUMMARY_PREFIX, w
     for line in watch.follow() if watch is not None else []:
         print(line, flush=True)
     if status != 0:
-        raise CliError(f"the {plant.name} exited with status {status}: {plant.tail()}")
+        raise CliError(f"the {plant.name} {plant.how_it_ended()}: {plant.tail()}")
     time.sleep(DRAIN_S)
 
 

@@ -302,7 +302,7 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
         for controller in started_controllers:
             controller.stop()
         if logger.stop() != 0:
-            raise CliError(f"the logger failed: {logger.tail()}")
+            raise CliError(f"the logger {logger.how_it_ended()}: {logger.tail()}")
     wall_s = time.monotonic() - started
     counts = logger_counts(logger.output())
     loops = plant_summary(plant.output(), SUMMARY_PREFIX)

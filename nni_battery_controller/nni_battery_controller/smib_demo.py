@@ -211,7 +211,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
         finish_plant(procs, plant, args, f"b = {b:<5g}", watch=watch)
         controller.stop()
         if logger.stop() != 0:
-            raise CliError(f"the logger failed: {logger.tail()}")
+            raise CliError(f"the logger {logger.how_it_ended()}: {logger.tail()}")
     wall_s = time.monotonic() - started
     counts = logger_counts(logger.output())
     summary = plant_summary(plant.output())

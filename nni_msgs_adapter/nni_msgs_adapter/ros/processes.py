@@ -73,7 +73,7 @@ class Child:
     """One child process with its log file."""
 
     def __init__(self, name: str, cmd: list[str], env: dict, log_path: Path, cwd: Path | None = None):
-        self.name, self.log_path = name, log_path
+        self.name, self.log_path, self._killed_after_s = name, log_path, None
         self._log = open(log_path, "wb")
         parent = os.getpid()
         self.proc = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=self._log, stderr=subprocess.STDOUT,
@@ -106,8 +106,18 @@ class Child:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+                self._killed_after_s = grace_s
         self._log.close()
         return self.proc.returncode
+
+    def how_it_ended(self) -> str:
+        """How the finished child ended, for a message: ``exited with status 1``, ``died of SIGSEGV``, ..."""
+        status = self.proc.returncode
+        if self._killed_after_s is not None:
+            return f"did not exit within {self._killed_after_s:g} s of SIGINT and was killed"
+        if status is not None and status < 0:
+            return f"died of {signal.Signals(-status).name}"
+        return f"exited with status {status}"
 
     def kill(self) -> None:
         """SIGKILL (a crash)."""
@@ -136,7 +146,7 @@ class Child:
                 if at >= 0 and accept(line[at:]):
                     return line[at:]
             if self.proc.poll() is not None:
-                raise ChildError(f"{self.name} exited with status {self.proc.returncode}: {self.tail()}")
+                raise ChildError(f"{self.name} {self.how_it_ended()}: {self.tail()}")
             if time.monotonic() > deadline:
                 raise ChildError(f"{self.name} printed no {prefix.strip()!r} line within {timeout_s:g} s: "
                                  f"{self.tail()}")
