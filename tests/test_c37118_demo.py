@@ -212,8 +212,10 @@ def test_ieee39_for_30_s_loses_no_frame_and_a_pdc_that_never_reads_costs_the_loo
     offered, misses = stream["offered"], {ns: g["dropped_samples"] for ns, g in result["generators"].items()}
     published = {g["logger_counts"][f"/{ns}/pmu"] for ns, g in result["generators"].items()}
     # Every measurement the plant published on ROS went to the stream too (the demo checked the recording
-    # holds them all); a loaded machine makes the realtime plant skip a few reporting instants.
-    assert published == {offered} and offered >= 0.9 * 30 * 60, (offered, published, misses)
+    # holds them all); a loaded machine makes the realtime plant skip reporting instants (a clean-clone
+    # suite on a slow host: 1613 of 1800). A plant held up by the stalled PDC would stop near the frames
+    # that PDC was sent before its buffers filled (963 in that run) plus the server's queue of 100.
+    assert published == {offered} and offered >= 0.8 * 30 * 60, (offered, published, misses)
     # Every frame reached the reading PDC, each with all 10 stations.
     assert len(instants) == offered and set(instants.values()) == {10}, (len(instants), offered)
     runs = read_generator_runs(Path(result["recording"]))
