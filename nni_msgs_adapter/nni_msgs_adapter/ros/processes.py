@@ -116,7 +116,10 @@ class Child:
         if self._killed_after_s is not None:
             return f"did not exit within {self._killed_after_s:g} s of SIGINT and was killed"
         if status is not None and status < 0:
-            return f"died of {signal.Signals(-status).name}"
+            try:
+                return f"died of {signal.Signals(-status).name}"
+            except ValueError:  # a real-time signal without a name of its own
+                return f"died of signal {-status}"
         return f"exited with status {status}"
 
     def kill(self) -> None:
