@@ -109,12 +109,22 @@ def test_a_killed_plant_is_a_loss_of_data_warned_with_a_zero_command(tmp_path, b
             assert wait_until(lambda: len(probe.take(contract.TOPIC_BATTERY_COMMAND)) > 25, 30.0)
             plant.kill()
             assert wait_until(lambda: STALE_WARNING in controller.output(), 10.0), controller.output()
+            # The warning is logged once the zero is sent; the probe's spin thread may take it in later under
+            # load (CI closed the probe first and held the answer to the last measurement as the last command).
+            assert wait_until(lambda: stand_down(probe) is not None, 10.0), "no zero command reached the probe"
             assert controller.interrupt() == 0
         finally:
             probe.close()
     output = controller.output()
     assert any(STALE_WARNING in line for line in log_lines(output, "WARN")), output
     assert not any(END_INFO in line for line in output.splitlines()), output
-    last_measurement = max(contract.ns_from_time(m.header.stamp) for m in probe.take(contract.TOPIC_PMU))
     stamp, power = stamps_and_powers(probe.take(contract.TOPIC_BATTERY_COMMAND))[-1]
-    assert stamp > last_measurement and power == 0.0, "the stand-down: zero, after the last measurement"
+    assert stand_down(probe) == stamp and power == 0.0, "the stand-down: zero, after the last measurement, last"
+
+
+def stand_down(probe) -> int | None:
+    """The stamp of the first zero command after the last measurement the probe holds, else None."""
+    last_measurement = max(contract.ns_from_time(m.header.stamp) for m in probe.take(contract.TOPIC_PMU))
+    after = [(stamp, power) for stamp, power in stamps_and_powers(probe.take(contract.TOPIC_BATTERY_COMMAND))
+             if stamp > last_measurement]
+    return after[0][0] if after and after[0][1] == 0.0 else None
