@@ -59,3 +59,12 @@ def paper_controller():
 def nni_simulate_exe() -> Path:
     """The ``nni-simulate`` console script installed beside this interpreter."""
     return Path(sys.executable).parent / "nni-simulate"
+
+
+@pytest.fixture
+def busy():
+    """Two busy processes beside a flow that depends on discovery or timing (shared by the parallel workers)."""
+    from rosproc import busy_processes
+
+    with busy_processes(2):
+        yield

@@ -6,8 +6,9 @@ neighbouring host would: it uses plain Fast DDS defaults (no profile of ours,
 no ``node_main``), listens for ``pmu`` and answers every measurement it hears
 with a 5 pu battery command stamped as the answer, and publishes 5 pu commands
 at 50/s in any case. After SECONDS it prints one JSON line: the nodes it
-discovered, how many measurements it received, the most subscribers its
-command publisher ever matched and how many commands it sent.
+discovered (and after how many seconds the first), how many measurements it
+received, the most subscribers its command publisher ever matched and how
+many commands it sent.
 """
 
 from __future__ import annotations
@@ -33,7 +34,9 @@ def main(seconds: float) -> dict:
     rclpy.init()
     node = rclpy.create_node("rogue")
     command = node.create_publisher(*contract.endpoint(contract.TOPIC_BATTERY_COMMAND))
-    report = {"nodes": [], "measurements": 0, "max_command_subscribers": 0, "commands_sent": 0}
+    report = {"nodes": [], "first_node_s": None, "measurements": 0, "max_command_subscribers": 0,
+              "commands_sent": 0}
+    started = time.monotonic()
 
     def send(stamp_ns: int) -> None:
         command.publish(contract.command_message(stamp_ns, ROGUE_POWER_PU))
@@ -53,6 +56,8 @@ def main(seconds: float) -> dict:
         executor.spin_once(timeout_sec=0.01)
         report["max_command_subscribers"] = max(report["max_command_subscribers"], command.get_subscription_count())
         found = {f"{ns.rstrip('/')}/{n}" for n, ns in node.get_node_names_and_namespaces() if n != "rogue"}
+        if found and report["first_node_s"] is None:
+            report["first_node_s"] = round(time.monotonic() - started, 3)
         report["nodes"] = sorted(set(report["nodes"]) | found)
     executor.shutdown(timeout_sec=1.0)
     node.destroy_node()

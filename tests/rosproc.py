@@ -181,6 +181,14 @@ def node_processes(tmp_path: Path, domain_id: int):
             proc.interrupt(timeout=5.0)
 
 
+def printed_json(output: str, prefix: str) -> dict:
+    """The JSON a node printed on the line starting with ``prefix`` (a plant's summary at exit)."""
+    for line in output.splitlines():
+        if line.startswith(prefix):
+            return json.loads(line[len(prefix):])
+    raise AssertionError(f"no line starts with {prefix!r}: {output[-500:]}")
+
+
 def wait_until(predicate, timeout: float, step: float = 0.02) -> bool:
     """Poll ``predicate`` until it holds or ``timeout`` s pass; its last value."""
     deadline = time.monotonic() + timeout

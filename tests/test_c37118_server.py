@@ -179,7 +179,10 @@ def test_a_pdc_that_never_reads_loses_frames_alone_and_never_slows_the_offers():
     # The hand-off adds a deque append and at most one non-blocking send: never the wait of a blocking one.
     assert np.median(offer_s) <= 2 * np.median(baseline_s) + 50e-6, (np.median(offer_s), np.median(baseline_s))
     assert np.percentile(offer_s, 99) <= 2 * np.percentile(baseline_s, 99) + 1e-3
-    assert max(offer_s) < 0.5, "no offer waited on the stalled PDC"
+    # A send that waited on the stalled PDC would wait on every offer once its buffers are full (the p99 above) or
+    # for good; one offer held up by the scheduler (1.49 s once, in a clean-clone suite on a loaded 2-core host,
+    # the other 1499 in 0.1-0.3 ms) is not one.
+    assert sum(t >= 0.5 for t in offer_s) <= 1 + sum(t >= 0.5 for t in baseline_s), "offers waited on the stalled PDC"
 
 
 def _open_fds() -> int:

@@ -15,7 +15,6 @@ holds whatever the plant's counters say.
 
 from __future__ import annotations
 
-import json
 import math
 import signal
 import threading
@@ -26,7 +25,7 @@ import pytest
 from nni_msgs_adapter.ros import contract
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
-from rosproc import Probe, fresh_domain_id, node_processes, wait_until
+from rosproc import Probe, fresh_domain_id, node_processes, printed_json, wait_until
 from test_node_parameters import _call, parameter_client
 
 pytestmark = pytest.mark.ros
@@ -69,10 +68,7 @@ class Rogue(Probe):
 
 def summary_of(plant) -> dict:
     """The plant's final values, from the JSON line it prints at exit."""
-    for line in plant.output().splitlines():
-        if line.startswith(SUMMARY_PREFIX):
-            return json.loads(line[len(SUMMARY_PREFIX):])
-    raise AssertionError(f"the plant printed no summary: {plant.output()[-500:]}")
+    return printed_json(plant.output(), SUMMARY_PREFIX)
 
 
 def applied_powers(probe) -> list[float]:

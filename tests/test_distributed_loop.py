@@ -12,8 +12,9 @@ from nni_battery_controller.law import ControllerParams
 from nni_battery_controller.simulate import simulate_sampled
 from nni_msgs_adapter.ros import contract
 from nni_plant_sim.model import SmibParams
+from nni_plant_sim.plant_node import SUMMARY_PREFIX
 from nni_plant_sim.scenarios import InitialAngle
-from rosproc import Probe, fresh_domain_id, node_processes
+from rosproc import Probe, fresh_domain_id, node_processes, printed_json
 
 pytestmark = pytest.mark.ros
 
@@ -40,8 +41,10 @@ def run_loop(tmp_path, mode: str, b: float, duration_s: float, rate_hz: float = 
             plant = start("plant", PLANT, {"mode": mode, "duration_s": duration_s, "pmu_rate_hz": rate_hz,
                                            "wait_for_subscribers": 2, **(plant_params or {})})
             assert plant.wait(timeout=timeout_s) == 0, plant.output()
-            # Reliable topics: whatever the plant sent is on its way; give the last ones time to land.
-            n_states = len(probe.wait_for(contract.TOPIC_PLANT_STATE, int(duration_s * rate_hz) + 1, 5.0))
+            # Reliable topics: whatever the plant sent is on its way; give the last ones time to land. One state
+            # per reported instant: realtime skips those it finds passed, and says how many.
+            reported = int(duration_s * rate_hz) + 1 - printed_json(plant.output(), SUMMARY_PREFIX)["skipped_reports"]
+            n_states = len(probe.wait_for(contract.TOPIC_PLANT_STATE, reported, 5.0))
             return {topic: probe.take(topic) for topic in RECORDED}, n_states
     finally:
         probe.close()

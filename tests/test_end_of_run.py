@@ -15,7 +15,7 @@ import time
 import pytest
 
 from nni_msgs_adapter.ros import contract
-from rosproc import Probe, busy_processes, fresh_domain_id, node_processes, wait_until
+from rosproc import Probe, fresh_domain_id, node_processes, wait_until
 
 pytestmark = pytest.mark.ros
 
@@ -23,13 +23,6 @@ PLANT = "nni_plant_sim.plant_node"
 CONTROLLER = "nni_battery_controller.controller_node"
 STALE_WARNING = "no measurement for"
 END_INFO = "the plant's run ended"
-
-
-@pytest.fixture
-def busy():
-    """Two busy processes beside the test."""
-    with busy_processes(2):
-        yield
 
 
 def stamps_and_powers(messages) -> list[tuple[int, float]]:

@@ -38,7 +38,7 @@ from nni_msgs_adapter.recording.mcap_io import MCAP_MAGIC, Ros2McapWriter, deser
 from nni_msgs_adapter.ros.defaults import controller_defaults, logger_defaults, plant_defaults
 from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX
 from nni_msgs_adapter.recording.runs import RUN_METADATA_NAME, read_generator_runs
-from rosproc import NodeProcess, Probe, fresh_domain_id, node_processes, ros_env
+from rosproc import NodeProcess, Probe, busy_processes, fresh_domain_id, node_processes, ros_env
 
 pytestmark = pytest.mark.ros
 
@@ -335,11 +335,6 @@ def test_replay_loop_repeats_the_recording_until_interrupted(tmp_path):
     assert len(omega) >= passes, "each pass starts with the recording's first message (Omega)"
 
 
-def busy_processes(count: int = 2) -> list[subprocess.Popen]:
-    """CPU hogs beside a discovery-dependent flow (ended by pid by the caller)."""
-    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
-
-
 @pytest.mark.parametrize("wait", [[], ["--wait-topic", "/plant/state"]], ids=["default", "wait_topic"])
 def test_replay_waits_for_a_subscriber_of_one_topic(wait):
     """A lockstep recording at the default rate (about 1.2 s of playback): a subscriber of plant/state
@@ -351,8 +346,7 @@ def test_replay_waits_for_a_subscriber_of_one_topic(wait):
     recording = RECORDINGS / "paper_b0.3.mcap"
     expected = [r.cdr_bytes for r in read_messages(recording) if r.topic == "/" + contract.TOPIC_PLANT_STATE]
     domain = fresh_domain_id()
-    hogs = busy_processes()
-    try:
+    with busy_processes(2):
         replay = subprocess.Popen([str(NNI_REPLAY), str(recording), *wait], env=ros_env(domain),
                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         time.sleep(1.0)
@@ -362,10 +356,6 @@ def test_replay_waits_for_a_subscriber_of_one_topic(wait):
             received = probe.wait_for(contract.TOPIC_PLANT_STATE, len(expected), 10.0)
         finally:
             probe.close()
-    finally:
-        for hog in hogs:
-            hog.kill()
-            hog.wait()
     assert replay.returncode == 0, output
     assert "waiting for 1 subscriber(s)" in output, "it says what it waits for"
     assert [cdr for _, cdr in received] == expected

@@ -38,7 +38,7 @@ from nni_msgs_adapter.recording.mcap_io import deserialize, read_messages
 from nni_msgs_adapter.ros.node_main import FASTDDS_PROFILES_ENV, NETWORK_ENV, network_profile
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
 from rogue_peer import REPORT_PREFIX, ROGUE_POWER_PU
-from rosproc import NodeProcess, busy_processes, fresh_domain_id, ros_env
+from rosproc import NodeProcess, busy_processes, fresh_domain_id, printed_json, ros_env
 
 pytestmark = pytest.mark.ros
 
@@ -90,8 +90,13 @@ def run_attack(tmp_path: Path, network: str) -> dict:
 
             start("logger", "nni_msgs_adapter.recording.mcap_logger", {"output_path": str(mcap)})
             start("controller", "nni_battery_controller.controller_node", {"battery_limit_pu": B})
+            # With the switch the plant waits for the rogue's pmu reader too (a clean-clone suite under load once
+            # ran the whole 6 s before the rogue had seen a node; it announces itself first, before our
+            # participants exist, then every few seconds). Without the switch it must never come.
+            readers = 3 if network == "multihost" else 2
             plant = start("plant", "nni_plant_sim.plant_node",
-                          {"mode": "realtime", "duration_s": RUN_S, "wait_for_subscribers": 2})
+                          {"mode": "realtime", "duration_s": RUN_S, "wait_for_subscribers": readers,
+                           "wait_timeout_s": 30.0})
             time.sleep(RUN_S / 2 + 2.0)  # mid-run: every participant is up
             sockets = _udp_sockets(node.proc.pid for node in nodes)
             assert plant.wait(timeout=60.0) == 0, plant.output()
@@ -196,8 +201,7 @@ def test_the_multihost_switch_runs_the_loop_across_network_namespaces(tmp_path):
             controller.terminate()
             controller.wait(timeout=20)
     assert plant.returncode == 0, plant.stderr
-    summary = json.loads(next(line for line in plant.stdout.splitlines()
-                              if line.startswith(SUMMARY_PREFIX))[len(SUMMARY_PREFIX):])
+    summary = printed_json(plant.stdout, SUMMARY_PREFIX)
     # 3 s at 50/s in lockstep: every measurement answered across the link. (Realtime, a machine loaded far
     # beyond the two busy processes skipped most instants: that measured the load, not the switch.)
     assert summary["measurements"] == 150 and summary["commands"] == 150, summary

@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import pytest
-from rosproc import fresh_domain_id, ros_env
+from rosproc import fresh_domain_id, printed_json, ros_env
 from test_defaults import overlay, run
 
 from nni_msgs_adapter.ros.defaults import config_path
@@ -49,7 +49,6 @@ def test_the_network_plant_runs_with_its_own_yaml_as_params_file(tmp_path):
                            str(yaml_path), "-p", "mode:=realtime", "-p", "duration_s:=0.2", "-p", "wait_for_subscribers:=0"],
                           env=ros_env(fresh_domain_id()), capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
-    line = next(line for line in done.stdout.splitlines() if line.startswith(SUMMARY_PREFIX))
-    summary = json.loads(line[len(SUMMARY_PREFIX):])
+    summary = printed_json(done.stdout, SUMMARY_PREFIX)
     assert list(summary) == ["gen1", "gen2", "gen3", "gen4"]
     assert all(values["run_ended"] and values["sim_time_s"] == pytest.approx(0.2) for values in summary.values()), summary

@@ -376,16 +376,6 @@ def test_reported_grid_instants_carry_no_float_noise(tmp_path, nni_simulate_exe)
 # --- nni-demo: the same options reach the nodes and the assessment ---------------------------
 
 
-@pytest.fixture
-def busy():
-    """Two busy processes beside a flow that depends on discovery."""
-    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
-    yield
-    for proc in procs:
-        proc.kill()
-        proc.wait()
-
-
 def test_demo_runs_a_fault_scenario_with_its_model_and_says_so(tmp_path, busy, paper_controller):
     """A stronger line (P_max 1.2, delta_bar = asin(0.8/1.2)): the nodes run it and the assessment models it.
 
