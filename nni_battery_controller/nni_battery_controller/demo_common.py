@@ -192,7 +192,8 @@ def wait_for_recorder(logger, spaces, logs: Path) -> None:
     found the controllers' writers: with the composed deployment's one participant of many endpoints,
     under load, the logger once found /gen3's and /gen4's only after 70 samples (recording 27 of 100
     commands), and the SMIB's logger once recorded none of its controller's 500 (a lockstep run over
-    before it subscribed, beside a loaded suite): the plant starts only once these subscriptions exist.
+    before it subscribed, beside a loaded suite): the plant's run is released only once these subscriptions
+    exist (call this before :func:`start_when_read_back`).
     """
     wanted = {"/" + "/".join(filter(None, (ns, topic))) for ns in spaces for topic in CONTROLLER_TOPICS}
     deadline = time.monotonic() + RECORDER_WAIT_S

@@ -287,8 +287,9 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
             "output_path": str(recording), "discovery_period_s": 0.1,
             "run_metadata": json.dumps(run_metadata(args, plant_params, controllers))})
         started_controllers = start_controllers(procs, controllers, args.deployment, key_environment(key))
-        wait_for_recorder(logger, spaces, logs)
+        # The plant holds its run until released: it starts beside the others, its release waits for the logger.
         plant = procs.start_node("network_plant", PLANT, plant_params, env=key_environment(key))
+        wait_for_recorder(logger, spaces, logs)
         watch = StreamWatch(plant) if args.stream else None
         where = watch.listening() if watch is not None else None
         client = demo_c37118.start_client(procs, where, args.measurements, args.mode,

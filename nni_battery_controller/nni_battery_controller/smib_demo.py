@@ -199,8 +199,9 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
             "run_metadata": json.dumps(run_metadata(args, plant_params, controller_params))})
         controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params,
                                       env=key_environment(key))
-        wait_for_recorder(logger, [""], logs)
+        # The plant holds its run until released: it starts beside the others, its release waits for the logger.
         plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params, env=key_environment(key))
+        wait_for_recorder(logger, [""], logs)
         watch = StreamWatch(plant) if args.stream else None
         where = watch.listening() if watch is not None else None
         client = demo_c37118.start_client(procs, where, args.measurements, args.mode, 2, idcode=args.pmu_idcode)
