@@ -7,7 +7,9 @@ alone with ``-r __ns:=<namespace>``. Per-node values come from a params file wit
 command line applies to every node. The host node's parameters are locked as every controller's are
 (``allow_tuning``; ``namespaces`` is read at start whatever it says), and each node states its own at
 start. SIGINT or SIGTERM stops them all cleanly (final diagnostics, last commands acknowledged), as for
-one node.
+one node. The controllers share one reader of ``/clock`` and one of ``/diagnostics``
+(:class:`.controller_node.PlantReaders`, under the host node): the plant's lockstep clock and every status
+array reach the process once, not once per controller.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 
 from nni_battery_controller import controller_config
-from nni_battery_controller.controller_node import ControllerNode
+from nni_battery_controller.controller_node import ControllerNode, PlantReaders
 from nni_msgs_adapter.ros.defaults import controller_defaults
 from nni_msgs_adapter.ros.node_main import run_node
 from nni_msgs_adapter.ros.ros_params import (
@@ -54,6 +56,7 @@ class HostNode(Node):
         self._specs = host_parameters()
         values = declared_values(self, self._specs)
         self.namespaces = values["namespaces"]
+        self.plant = None  # the controllers' shared PlantReaders (compose), under this node
         install_validation(self, self._specs, lambda new: locked_changes(
             values, new, ["namespaces"], "once the node is up (its controllers are made at start)"),
                            lambda prepared: None, values["allow_tuning"])
@@ -61,6 +64,11 @@ class HostNode(Node):
     def effective_parameters(self) -> dict:
         """What the host runs with (node_main prints it at start, for the read-back)."""
         return effective_values(self, self._specs)
+
+    def close(self) -> None:
+        """Before the node goes (node_main calls it once the executor has stopped): the controllers' readers."""
+        if self.plant is not None:
+            self.plant.destroy()
 
 
 def compose() -> list[Node]:
@@ -71,9 +79,10 @@ def compose() -> list[Node]:
         raise ValueError("namespaces is empty: give the generators' namespaces, e.g. -p namespaces:=\"['/gen1']\"")
     controller_config.check_namespaces("namespaces", namespaces)
     nodes = [host]
+    host.plant = PlantReaders(host)
     for namespace in namespaces:
         try:
-            nodes.append(ControllerNode(namespace=namespace))
+            nodes.append(ControllerNode(plant=host.plant, namespace=namespace))
         except (ValueError, ParameterException) as exc:
             raise ValueError(f"{namespace}/controller: {exc}") from None
     return nodes

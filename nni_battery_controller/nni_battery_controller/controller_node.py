@@ -24,10 +24,12 @@ from nni_msgs_adapter.ros.node_main import run_node
 class ControllerNode(LoopNode):
     """Answers every PMU measurement that passes the gate with a battery power command."""
 
-    def __init__(self, **kwargs):
+    def __init__(self, plant: PlantReaders | None = None, **kwargs):
+        """``plant``: the process's readers of the plant's /clock and /diagnostics when several controllers
+        share them (composed), else the node's own."""
         super().__init__("controller", parameters(), **kwargs)
         config = ControllerConfig(self.initial_values, self.get_namespace())
-        self._core, self._clock_ns = ControllerCore(config), None
+        self._core = ControllerCore(config)
         key = command_auth.key_from_environment()
         self._commands = StampedPublisher(self, contract.TOPIC_BATTERY_COMMAND,
                                           layout=contract.command_bytes(sealed=key is not None))
@@ -36,8 +38,9 @@ class ControllerNode(LoopNode):
         ControllerCore.warm_up(config)
         self._pmu_subs = [contract.subscribe(self, config.measurement_topic, lambda data, i=i: self._on_pmu(i, data),
                                              ns, raw=True) for i, ns in enumerate(config.pmu_namespaces)]
-        self._clock_reader = PolledReader(self, contract.TOPIC_CLOCK)  # read at each measurement: no wake of its own
-        contract.subscribe(self, contract.TOPIC_DIAGNOSTICS, self._on_diagnostics, raw=True)
+        self._own_plant_readers = plant is None
+        self._plant = PlantReaders(self) if plant is None else plant
+        self._plant.listen(self._on_diagnostics)
         # The silence watchdog, re-armed only when it fires, for the instant the silence since the last accepted
         # measurement would reach stale_after_s. A timer at the sample rate doubled the wake-ups (profiled); one
         # restarted by each measurement woke the EventsExecutor's timer thread on every sample (ieee39 lockstep,
@@ -53,13 +56,13 @@ class ControllerNode(LoopNode):
 
     def _on_pmu(self, index: int, data: bytes) -> None:
         arrival_ns = self.now_ns()
-        self._read_clock()
+        clock_ns = self._plant.newest_clock_ns()
         try:
             reading, effort = contract.pmu_from_bytes(data)
         except contract.ContractError:
             reading, effort = None, ()
         answer = self._core.receive(index, reading, effort, self._pmu_subs[index].get_publisher_count(),
-                                    arrival_ns, self._clock_ns, self._clock_reader.get_publisher_count)
+                                    arrival_ns, clock_ns, self._plant.clock_writers)
         if answer is not None:
             self._command(answer.stamp_ns, answer.power_pu)
             self._states.publish(*answer.signals())
@@ -71,15 +74,6 @@ class ControllerNode(LoopNode):
         else:
             self._commands.publish(stamp_ns, power_pu, self._signer.seal(stamp_ns, power_pu))
 
-    def _read_clock(self) -> None:
-        """The latest /clock heard, if one came since the last measurement."""
-        data = self._clock_reader.latest()
-        if data is not None:
-            try:
-                self._clock_ns = contract.clock_from_bytes(data)
-            except contract.ContractError:
-                pass  # no time in it: the stamps stay checked against the last one heard
-
     def _on_diagnostics(self, data: bytes) -> None:
         if contract.plant_run_ended(data, self.get_namespace()) and self._core.end_of_run():
             self.get_logger().info(f"the plant's run ended after {self._core.gate.counts['samples']} answered "
@@ -87,7 +81,7 @@ class ControllerNode(LoopNode):
 
     def _check_stale(self) -> None:
         now_ns = self.now_ns()
-        stamp_ns = self._core.silence(now_ns, self._clock_reader.get_publisher_count() > 0)
+        stamp_ns = self._core.silence(now_ns, self._plant.clock_writers() > 0)
         if stamp_ns is not None:
             self._command(stamp_ns, 0.0)
             self.get_logger().warning(f"no measurement for {self._core.config.stale_after_s:g} s: battery power set to zero")
@@ -103,7 +97,51 @@ class ControllerNode(LoopNode):
 
     def close(self) -> None:
         super().close()
-        self._clock_reader.destroy()
+        if self._own_plant_readers:
+            self._plant.destroy()
+
+
+class PlantReaders:
+    """What a controller hears from the plant beside its measurements: ``/clock`` and ``/diagnostics``.
+
+    ``/clock`` (lockstep) is read when a measurement comes, by a reader no executor dispatches
+    (:class:`.PolledReader`: the newest /clock heard then); ``/diagnostics`` by a subscription whose
+    callback hands every message to each controller that :meth:`listen`\ s (the plant's end-of-run
+    notice). Both topics are absolute: every controller of a composed process hears the same
+    messages, so they share one PlantReaders (``ControllerNode(plant=...)``), and the process gets
+    each /clock sample and each status array once instead of once per controller. With 52
+    controllers in one process, their own readers took every lockstep sample's /clock 52 times (52
+    histories, 52 acknowledgements to the plant), and every second's 53 status arrays (52
+    controllers' and the plant's) 2756 times through the executor. :meth:`destroy` it before its node.
+    """
+
+    def __init__(self, node):
+        self._clock = PolledReader(node, contract.TOPIC_CLOCK)
+        self.clock_writers = self._clock.get_publisher_count
+        self._clock_ns: int | None = None
+        self._listeners = []
+        contract.subscribe(node, contract.TOPIC_DIAGNOSTICS, self._on_diagnostics, raw=True)
+
+    def newest_clock_ns(self) -> int | None:
+        """The time of the newest /clock heard (ns), None before any."""
+        data = self._clock.latest()
+        if data is not None:
+            try:
+                self._clock_ns = contract.clock_from_bytes(data)
+            except contract.ContractError:
+                pass  # no time in it: the stamps stay checked against the last one heard
+        return self._clock_ns
+
+    def listen(self, callback) -> None:
+        """``callback(data)`` gets the bytes of every ``/diagnostics`` message from now on."""
+        self._listeners.append(callback)
+
+    def _on_diagnostics(self, data: bytes) -> None:
+        for callback in self._listeners:
+            callback(data)
+
+    def destroy(self) -> None:
+        self._clock.destroy()
 
 
 def main(args=None) -> int:
