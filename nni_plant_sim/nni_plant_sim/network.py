@@ -50,10 +50,17 @@ class Coupling:
     gc_source: np.ndarray
     bs_source: np.ndarray
     block: np.ndarray = field(init=False, repr=False)
+    #: What the compiled RK4 (:mod:`.network_rk4`) takes, made once: ``block`` transposed, as a C array of one
+    #: coupling (shape (1, 2N, 2N)), and the source terms ``[gc_source, bs_source]`` (shape (1, 2N)).
+    columns: np.ndarray = field(init=False, repr=False)
+    sources: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         # [[Gc, -Bs], [Bs, Gc]] @ [c; s] gives both sums of electrical_power in one product.
-        object.__setattr__(self, "block", np.block([[self.gc, -self.bs], [self.bs, self.gc]]))
+        block = np.block([[self.gc, -self.bs], [self.bs, self.gc]])
+        object.__setattr__(self, "block", block)
+        object.__setattr__(self, "columns", np.array(block.T, dtype=float, order="C")[None])
+        object.__setattr__(self, "sources", np.concatenate((self.gc_source, self.bs_source)).astype(float)[None])
 
 
 @dataclass(frozen=True)
