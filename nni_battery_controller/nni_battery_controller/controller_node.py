@@ -106,7 +106,7 @@ class PlantReaders:
 
     ``/clock`` (lockstep) is read when a measurement comes, by a reader no executor dispatches
     (:class:`.PolledReader`: the newest /clock heard then); ``/diagnostics`` by a subscription whose
-    callback hands every message to each controller that :meth:`listen`\ s (the plant's end-of-run
+    callback hands every message to each controller listening (:meth:`listen`: the plant's end-of-run
     notice). Both topics are absolute: every controller of a composed process hears the same
     messages, so they share one PlantReaders (``ControllerNode(plant=...)``), and the process gets
     each /clock sample and each status array once instead of once per controller. With 52
