@@ -65,40 +65,54 @@ class StampedBytes:
 
     :meth:`pack` writes ``stamp_ns`` as (sec int32, nanosec uint32, as
     :func:`nni_msgs_adapter.ros.contract.time_from_ns` splits it) and the values,
-    in order, into the buffer, and returns its bytes. A layout with a text slot
+    in order, and returns the message's bytes. A layout with a text slot
     (``text``: its offset and length, a fixed-length tail of a string) takes
     the slot's bytes as its last value.
+
+    Every byte of a layout is either fixed (the encapsulation, the frame_id, the
+    names, the counts, the padding) or a slot (the stamp, the values, the text).
+    One struct reads and writes all the slots at once, skipping the fixed bytes
+    (pad bytes ``x``, which it writes as zeros), and the fixed bytes are the
+    template's under a mask: packing ORs them in, reading compares them, each as
+    one integer operation. A measurement packs in 1.3 us and reads back in 1.3
+    (timeit), where writing each slot into the template took 3.1 and comparing
+    each fixed stretch 2.4: two of each per generator and sample on the loop's
+    path (the measurement at the plant and its controller, the command back).
     """
 
     def __init__(self, writer: _Writer, stamp_offset: int, groups: list[tuple[int, struct.Struct]],
                  text: tuple[int, int] | None = None):
-        self._buffer, self._stamp_offset, self._groups = writer.out, stamp_offset, tuple(groups)
-        self._text = text
-        self.count = sum(group.size // 8 for _, group in self._groups) + (text is not None)
-        # What :meth:`unpack` compares: every byte but the stamp's, the values' and the text's, as (start, stop, bytes).
-        slots = sorted([(stamp_offset, stamp_offset + _STAMP.size)]
-                       + [(offset, offset + group.size) for offset, group in self._groups]
-                       + ([(text[0], text[0] + text[1])] if text else []))
-        edges = [0, *(edge for slot in slots for edge in slot), len(self._buffer)]
-        template = bytes(self._buffer)
-        self._fixed = tuple((start, stop, template[start:stop]) for start, stop in zip(edges[::2], edges[1::2])
-                            if stop > start)
+        template = bytes(writer.out)
+        self.size = len(template)
+        self._text_length = None if text is None else text[1]
+        self.count = sum(group.size // 8 for _, group in groups) + (text is not None)
+        if text is not None and any(offset < text[0] for offset, _ in groups):
+            raise ValueError("a text slot comes before the values (it is in the header)")
+        slots = sorted([(stamp_offset, _STAMP.format[1:])]
+                       + [(offset, group.format[1:]) for offset, group in groups]
+                       + ([(text[0], f"{text[1]}s")] if text else []))
+        fields, mask, at = ["<"], bytearray(b"\xff" * self.size), 0
+        for offset, form in slots:
+            width = struct.calcsize("<" + form)
+            fields += [f"{offset - at}x"] if offset > at else []
+            fields.append(form)
+            mask[offset:offset + width] = bytes(width)
+            at = offset + width
+        fields += [f"{self.size - at}x"] if self.size > at else []
+        self._slots = struct.Struct("".join(fields))
+        self._mask = int.from_bytes(mask, "little")
+        self._fixed = int.from_bytes(template, "little") & self._mask
 
     def pack(self, stamp_ns: int, *values) -> bytes:
         if len(values) != self.count:
             raise TypeError(f"{self.count} values expected, got {len(values)}")
-        buffer, start = self._buffer, 0
-        _STAMP.pack_into(buffer, self._stamp_offset, *divmod(stamp_ns, 1_000_000_000))
-        for offset, group in self._groups:
-            stop = start + group.size // 8
-            group.pack_into(buffer, offset, *values[start:stop])
-            start = stop
-        if self._text is not None:
-            offset, length = self._text
-            if len(values[-1]) != length:
-                raise ValueError(f"the text slot takes {length} bytes, got {len(values[-1])}")
-            buffer[offset:offset + length] = values[-1]
-        return bytes(buffer)
+        if self._text_length is not None and len(values[-1]) != self._text_length:
+            raise ValueError(f"the text slot takes {self._text_length} bytes, got {len(values[-1])}")
+        if self._text_length is None:
+            slots = self._slots.pack(*divmod(stamp_ns, 1_000_000_000), *values)
+        else:  # the text (header.frame_id) comes before the values on the wire
+            slots = self._slots.pack(*divmod(stamp_ns, 1_000_000_000), values[-1], *values[:-1])
+        return (int.from_bytes(slots, "little") | self._fixed).to_bytes(self.size, "little")
 
     def unpack(self, data: bytes) -> tuple[int, tuple] | None:
         """``(stamp_ns, values)`` of bytes of this layout, as :meth:`pack` writes them; None for any other bytes.
@@ -106,16 +120,12 @@ class StampedBytes:
         Other bytes may still be a valid message (another encoding, frame_id, size or
         padding): the caller deserialises those (:func:`nni_msgs_adapter.ros.contract.command_from_bytes`).
         """
-        if len(data) != len(self._buffer) or any(data[start:stop] != fixed for start, stop, fixed in self._fixed):
+        if len(data) != self.size or int.from_bytes(data, "little") & self._mask != self._fixed:
             return None
-        sec, nanosec = _STAMP.unpack_from(data, self._stamp_offset)
-        values = ()
-        for offset, group in self._groups:
-            values += group.unpack_from(data, offset)
-        if self._text is not None:
-            offset, length = self._text
-            values += (bytes(data[offset:offset + length]),)
-        return sec * 1_000_000_000 + nanosec, values
+        sec, nanosec, *values = self._slots.unpack(data)
+        if self._text_length is not None:
+            values.append(values.pop(0))
+        return sec * 1_000_000_000 + nanosec, tuple(values)
 
 
 def joint_state(frame_id: str, names: Sequence[str], counts: tuple[int, int, int],
