@@ -116,7 +116,7 @@ def rk4_network(delta, speed, steps: int, h: float, net, p_mech_pu, coupling, ba
         which = own(np.broadcast_to(np.where(coupling.use_first, 0, 1), (runs,)), np.int64)
     else:
         columns, sources, which = coupling.columns, coupling.sources, np.zeros(runs, np.int64)
-    delta, speed = _rk4_steps(own(np.reshape(delta, (n, runs))), own(np.reshape(speed, (n, runs))), int(steps),
+    delta, speed = _rk4_steps(own(delta).reshape(n, runs), own(speed).reshape(n, runs), int(steps),
                               float(h), columns, sources, which, drive, own(net.damping_pu), own(net.inertia_m))
     return delta.reshape(shape), speed.reshape(shape)
 

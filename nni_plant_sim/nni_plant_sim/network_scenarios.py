@@ -52,6 +52,8 @@ class BusFault(_FromEquilibrium):
     trip: tuple = ()
     _during: Coupling = field(init=False, repr=False)
     _after: Coupling = field(init=False, repr=False)
+    #: The first and the last clearing instant, s: read at every integrated period and every measurement.
+    _clearing_span: tuple = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         clearing = np.asarray(self.clearing_time_s, dtype=float)
@@ -61,18 +63,19 @@ class BusFault(_FromEquilibrium):
             raise ValueError(f"fault impedance must be finite with R >= 0, got {self.impedance_pu}")
         object.__setattr__(self, "_during", self.net.faulted(self.bus, self.impedance_pu))
         object.__setattr__(self, "_after", self.net.without(self.trip) if self.trip else self.net.coupling)
+        object.__setattr__(self, "_clearing_span", (float(clearing.min()), float(clearing.max())))
 
     def network(self, t_s: float, net: Network):
         """Faulted network until clearing (per run for an array of clearing times), then the post-fault one.
 
         Between the first and the last clearing time of a batch each run gets its own (:class:`Switched`).
         """
-        clearing = np.asarray(self.clearing_time_s)
-        if t_s < clearing.min():
+        first, last = self._clearing_span
+        if t_s < first:
             return net.p_mech_pu, self._during
-        if t_s >= clearing.max():
+        if t_s >= last:
             return net.p_mech_pu, self._after
-        return net.p_mech_pu, Switched(self._during, self._after, t_s < clearing)
+        return net.p_mech_pu, Switched(self._during, self._after, t_s < np.asarray(self.clearing_time_s))
 
     def narrowed(self, keep) -> "BusFault":
         """The same fault for the runs ``keep`` (boolean, shape (R,)) of a batch of clearing times."""
