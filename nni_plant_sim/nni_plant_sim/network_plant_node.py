@@ -81,8 +81,11 @@ class NetworkPlantNode(PlantNodeBase):
         """Per generator: angle and speed as its PMU reads them, and its electrical power (pu of its rating)."""
         x = sample.state
         power = electrical_power(x[0], self._scenario.network(sample.t_s, self._plant)[1])[:, 0] / self._scale
+        deltas, speeds = x.reshape(2, -1).tolist()
+        if self._exact_sensors:
+            return list(zip(deltas, speeds, power.tolist()))
         return [(*sensor.read(delta, speed), p) for sensor, delta, speed, p
-                in zip(self._sensors, *x.reshape(2, -1).tolist(), power.tolist())]
+                in zip(self._sensors, deltas, speeds, power.tolist())]
 
     def _stream_description(self) -> tuple:
         """A station per generator, named by its namespace, machine and bus; EMF, terminal voltage and current."""

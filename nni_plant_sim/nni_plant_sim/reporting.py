@@ -40,7 +40,7 @@ import numpy as np
 
 from nni_msgs_adapter.ros import command_auth
 from nni_plant_sim.link import NO_LINK, DelayLine, Link
-from nni_plant_sim.loop_stats import LoopStats
+from nni_plant_sim.loop_stats import LoopStats, TimingDistribution
 
 #: A battery command beyond this is a fault, not a request to clip (a battery a
 #: thousand times the machine's base power does not exist): dropped as invalid.
@@ -425,6 +425,11 @@ class LockstepStepper(_Loop):
         super().__init__(integrate, state, channels, duration_s, link)
         self.period_s = period_s
         self.timeout_s = timeout_s
+        # The generators' measurements go out together: one turnaround a sample, the one distribution every
+        # channel reports (added once, where each channel's own copy took N adds a sample).
+        self.turnaround = TimingDistribution(0, 100_000_000)
+        for channel in self.channels:
+            channel.stats.turnaround = self.turnaround
         self.awaited_ns: int | None = None
         self._answered: set[int] = set()
         self._arrival_ns: int | None = None
@@ -446,8 +451,8 @@ class LockstepStepper(_Loop):
         """The awaited sample's measurement left the plant at ``wall_ns``."""
         for channel in self.channels:
             channel.stats.sent(self.awaited_ns, wall_ns)
-            if self._arrival_ns is not None:
-                channel.stats.turnaround.add(wall_ns - self._arrival_ns)
+        if self._arrival_ns is not None:
+            self.turnaround.add(wall_ns - self._arrival_ns)
         self._arrival_ns = None
 
     def command(self, index: int, stamp_ns: int, power_pu: float, arrival_ns: int, seal: bytes | None = None,
@@ -503,6 +508,8 @@ class PmuSensor:
         self.angle_std_rad, self.speed_std_rad_s = angle_std_rad, speed_std_rad_s
         self.quantisation_rad = quantisation_rad
         self._rng = np.random.default_rng(seed)
+        #: No noise and no quantisation: :meth:`read` returns the true state.
+        self.exact = angle_std_rad == speed_std_rad_s == quantisation_rad == 0
 
     def read(self, delta_rad: float, speed_rad_s: float) -> tuple[float, float]:
         """``(delta rad, speed deviation rad/s)`` as measured."""
