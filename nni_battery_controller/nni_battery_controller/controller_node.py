@@ -61,11 +61,12 @@ class ControllerNode(LoopNode):
             reading, effort = contract.pmu_from_bytes(data)
         except contract.ContractError:
             reading, effort = None, ()
-        answer = self._core.receive(index, reading, effort, self._pmu_subs[index].get_publisher_count(),
+        answer = self._core.receive(index, reading, effort, self._pmu_subs[index].handle.get_publisher_count(),
                                     arrival_ns, clock_ns, self._plant.clock_writers)
         if answer is not None:
             self._command(answer.stamp_ns, answer.power_pu)
-            self._states.publish(*answer.signals())
+            if self._states.read():  # W_hat and the state's bytes only for a recorder or a viewer
+                self._states.publish(*answer.signals())
 
     def _command(self, stamp_ns: int, power_pu: float) -> None:
         """Send a battery command, sealed when the node has the run's key."""

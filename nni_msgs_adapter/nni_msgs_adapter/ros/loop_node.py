@@ -39,6 +39,10 @@ class StampedPublisher:
         handle = self.publisher.handle
         self._send, self._readers = handle.publish_raw, handle.get_subscription_count
 
+    def read(self) -> bool:
+        """A reader is matched: what :meth:`publish` would send reaches someone."""
+        return self._readers() > 0
+
     def publish(self, stamp_ns: int, *values) -> None:
         if self._readers():
             self._send(self.layout.pack(stamp_ns, *values))
