@@ -60,6 +60,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
 from rclpy.utilities import remove_ros_args
 
 from nni_msgs_adapter.ros.cli_support import EXIT_USAGE
@@ -166,9 +167,17 @@ def run_node(factory, args=None, prog: str = "node") -> int:
     for each in nodes:
         executor.add_node(each)
     dones = [each.done for each in nodes if getattr(each, "done", None) is not None]
+    # The executor dispatches in C++ for up to _SIGNAL_POLL_S at a time and stops at once when a node's run is
+    # over (``finished``, a future of each slice, completed by any ``done``). One spin_once per event, as
+    # before, cost the receiver 51 us of CPU a message against 40 (a raw subscription at 5000 messages/s,
+    # alternating runs): the plant and the composed controllers take N messages a lockstep sample.
+    finished = [Future()]
+    for done in dones:
+        done.add_done_callback(lambda _: finished[0].done() or finished[0].set_result(True))
     try:
         while not stop and not any(done.done() for done in dones):
-            executor.spin_once(timeout_sec=_SIGNAL_POLL_S)
+            finished[0] = Future()
+            executor.spin_until_future_complete(finished[0], timeout_sec=_SIGNAL_POLL_S)
     finally:
         for each in nodes:
             close = getattr(each, "close", None)
