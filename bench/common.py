@@ -89,9 +89,9 @@ def pingpong(env: dict, log_dir: Path, mode: str, rate_hz: float = 100.0, durati
     """One ping-pong run: the ping and the bare echo (or ``peer``), or ``fanout`` echoes in /gen1.. /genN
     (``composed``: as nodes of one echo process, on one executor).
 
-    Returns the ping's JSON result.
+    Returns the ping's JSON result, with ``echo_cpu_s``: the echo processes' CPU time over the pinging.
     """
-    from bench.pingpong import RESULT_PREFIX, fanout_namespaces
+    from bench.pingpong import RESULT_PREFIX, STARTED_LINE, fanout_namespaces
 
     echo = [sys.executable, "-m", "bench.pingpong", "echo"]
     env = with_participants(env, 2 if composed else max(fanout, 1) + 1)
@@ -105,17 +105,22 @@ def pingpong(env: dict, log_dir: Path, mode: str, rate_hz: float = 100.0, durati
             procs.start("echo", peer or echo)
         procs.start("ping", [sys.executable, "-m", "bench.pingpong", "ping", "--mode", mode, "--rate", str(rate_hz),
                              "--duration", str(duration_s), "--samples", str(samples), "--fanout", str(fanout)])
+        limit_s = 60.0 + 3.0 * fanout + duration_s + samples * 0.05
         try:
-            status = procs["ping"].wait_exit(60.0 + 3.0 * fanout + duration_s + samples * 0.05)
+            echoes = [child for name, child in procs.children.items() if name != "ping"]
+            procs["ping"].wait_for_line(STARTED_LINE, limit_s)
+            echo_cpu_s = -sum(cpu_seconds(child.pid) for child in echoes)
+            status = procs["ping"].wait_exit(limit_s)
             if status != 0:
                 raise RuntimeError(f"ping-pong ping exited with {status}: {procs['ping'].tail(400)}")
-            echo_rss = [rss_kib(child.pid) for name, child in procs.children.items() if name != "ping"]
+            echo_rss = [rss_kib(child.pid) for child in echoes]
+            echo_cpu_s += sum(cpu_seconds(child.pid) for child in echoes)
         finally:
             stop_together(procs)
         result = printed_json(procs["ping"].output(), RESULT_PREFIX)
     if result is None:
         raise RuntimeError("ping-pong printed no result")
-    return {**result, "echo_rss_kib": echo_rss}
+    return {**result, "echo_rss_kib": echo_rss, "echo_cpu_s": echo_cpu_s}
 
 
 def closed_loop(env: dict, log_dir: Path, mode: str, rate_hz: float, duration_s: float,
@@ -200,14 +205,21 @@ def run_network_plant(plant, controllers, case: str, mode: str, size: int, durat
     started = time.monotonic()
     plant.wait_for_line("started in", limit_s)
     run_started, cpu_started = time.monotonic(), [cpu_seconds(child.pid) for child in controllers]
-    # The plant is reaped when it exits: its CPU over the run is what the children's rusage gains meanwhile,
-    # less what it had spent before the run.
     plant_cpu_started, children_cpu_started = cpu_seconds(plant.pid), _children_cpu_s()
     if attach:
         attach(plant.pid, [child.pid for child in controllers])
-    partial = None
+    partial, plant_cpu_s = None, None
     try:
-        status = plant.wait_exit(max(1.0, limit_s - (run_started - started)))
+        # The plant's CPU over its run: read when it prints its summary (its run is over), before its exit's
+        # teardown (0.1-0.3 s of CPU, a large share of a short run's).
+        plant.wait_for_line(SUMMARY_PREFIX, max(1.0, limit_s - (run_started - started)))
+        plant_cpu_s = cpu_seconds(plant.pid) - plant_cpu_started
+    except OSError:
+        pass  # gone already: through its rusage below
+    except ChildError:
+        pass  # exited without a summary, or past the limit: said below
+    try:
+        status = plant.wait_exit(max(1.0, limit_s - (time.monotonic() - started)))
     except ChildError:
         partial, status = f"stopped after {limit_s:.0f} s of wall time", None
     run_s = time.monotonic() - run_started
@@ -215,7 +227,8 @@ def run_network_plant(plant, controllers, case: str, mode: str, size: int, durat
     cpu_s = [cpu_seconds(child.pid) - before for child, before in zip(controllers, cpu_started)]
     if partial:
         status = plant.stop()  # SIGINT: the plant prints its summary of the run so far
-    plant_cpu_s = _children_cpu_s() - children_cpu_started - plant_cpu_started
+    if plant_cpu_s is None:  # reaped: what the children's rusage gained meanwhile, less what it had spent before
+        plant_cpu_s = _children_cpu_s() - children_cpu_started - plant_cpu_started
     if detach:
         detach()
     if status != 0:

@@ -1,5 +1,7 @@
 """Section 7 (issue 23): where a network lockstep sample's CPU time goes, per part of the plant's step and of the
-composed controllers' process, sampled with py-spy from outside (nothing in the nodes is instrumented).
+composed controllers' process, sampled with py-spy from outside (nothing in the nodes is instrumented), and how
+much of it the transport alone costs: the same run without the sampler beside a chained fan-out to as many echoes
+deployed alike, each process's CPU time (all threads) per sample.
 
 py-spy samples the process's Python threads at a fixed rate, idle or not (a thread with no Python frame, one of
 rclpy's or Fast DDS's own, is left out: the executor's is the one that runs the callbacks); a sample's part is the first rule of the
@@ -19,7 +21,7 @@ from collections import Counter
 from functools import lru_cache
 from pathlib import Path
 
-from bench.common import NETWORK_RATE_HZ, network_loop, not_completed, progress
+from bench.common import NETWORK_RATE_HZ, network_loop, not_completed, pingpong, progress
 from bench.lockstep import generator_percentiles
 from nni_msgs_adapter.ros.processes import ChildError
 
@@ -37,6 +39,11 @@ def _source_has(text: str):
 def _function(name: str, file_end: str = ""):
     """A rule: a frame of function or method ``name`` (in a file whose path ends with ``file_end``)."""
     return lambda function, path, line: (function == name or function.endswith("." + name)) and path.endswith(file_end)
+
+
+def _any(*rules):
+    """A rule: a frame that any of ``rules`` matches."""
+    return lambda function, path, line: any(rule(function, path, line) for rule in rules)
 
 
 def _file(file_end: str):
@@ -57,10 +64,11 @@ PLANT_PARTS = (
     ("timer (the lockstep watchdog)", _function("_on_timer", "plant_node_base.py")),
 )
 CONTROLLER_PARTS = (
+    ("/diagnostics and /clock readers", _any(_function("newest_clock_ns", "controller_node.py"),
+                                             _function("_on_diagnostics", "controller_node.py"))),
     ("the law (ControllerCore)", _file("controller_core.py")),
-    ("publish: commands and controller states", _file("loop_node.py")),
+    ("publish: commands and controller states", _function("publish", "loop_node.py")),
     ("measurement in (parse, gate)", _function("_on_pmu", "controller_node.py")),
-    ("/diagnostics and /clock readers", _file("contract.py")),
 )
 #: The spin loop's own frames (:func:`nni_msgs_adapter.ros.node_main.run_node` and the future it spins on).
 EXECUTOR = "executor (waiting, or its C++ dispatch)"
@@ -135,7 +143,11 @@ def bench_network_profile(env, log_root: Path, run=PROFILE_RUN, rate_hz: float =
             sampler.send_signal(signal.SIGINT)
             sampler.wait(timeout=60)
 
+    samples = round(sim_s * rate_hz)
     try:
+        plain = network_loop(env, log_dir / "plain", case, "lockstep", rate_hz, sim_s, deployment)
+        fanout = pingpong(env, log_dir / "fanout", "chained", samples=samples, fanout=plain["size"],
+                          composed=deployment == "composed")
         loop = network_loop(env, log_dir, case, "lockstep", rate_hz, sim_s, deployment, attach=attach, detach=detach)
     except (ChildError, RuntimeError, subprocess.TimeoutExpired) as error:
         return not_completed(f"network profile {case} ({deployment})", error)
@@ -143,7 +155,6 @@ def bench_network_profile(env, log_root: Path, run=PROFILE_RUN, rate_hz: float =
         for sampler in samplers.values():
             if sampler.poll() is None:
                 sampler.kill()
-    samples = round(sim_s * rate_hz)
     processes = []
     for name, parts, cpu_s in (("plant", PLANT_PARTS, loop["plant_cpu_s"]),
                                ("controllers", CONTROLLER_PARTS, loop["controller_cpu_s"][0])):
@@ -154,8 +165,14 @@ def bench_network_profile(env, log_root: Path, run=PROFILE_RUN, rate_hz: float =
         counts = classify(out.read_text(), parts)
         processes.append({"process": name, "cpu_s": cpu_s, "samples_seen": sum(counts.values()),
                           "parts": [(part, counts.get(part, 0)) for part in (*(name for name, _ in parts), EXECUTOR, "other")]})
+    round_trips = len(fanout["round_trips_ns"])
+    transport = {"plant_us": plain["plant_cpu_s"] * 1e6 / samples, "ping_us": fanout["cpu_s"] * 1e6 / round_trips,
+                 "controllers_us": sum(plain["controller_cpu_s"]) * 1e6 / samples,
+                 "echoes_us": fanout["echo_cpu_s"] * 1e6 / round_trips,
+                 "cycle_ms": next(iter(plain["summary"].values()))["run_wall_s"] * 1e3 / samples,
+                 "round_trip_ms": fanout["wall_s"] * 1e3 / round_trips}
     return {"case": case, "deployment": deployment, "sim_s": sim_s, "rate_hz": rate_hz, "loop_samples": samples,
-            "wall_s": loop["wall_s"], "size": loop["size"], "processes": processes,
+            "wall_s": loop["wall_s"], "size": loop["size"], "processes": processes, "transport": transport,
             "turnaround_ms": generator_percentiles(loop["summary"], "turnaround")["p50"]}
 
 
@@ -180,6 +197,27 @@ def network_profile_section(result: dict) -> list[str]:
         lines.append("")
     measurements = dict(result["processes"][0]["parts"]).get("publish: N measurements", 0)
     per_message_us = measurements / SAMPLING_HZ * 1e6 / result["loop_samples"] / result["size"]
-    return lines + [f"The plant's measurement publishes: {per_message_us:.1f} us per message (rclpy's publish of "
-                    "the message's exact bytes, through rcl and Fast DDS to its one subscriber), paid N times a "
-                    "sample on the plant's one executor thread.", ""]
+    lines += [f"The plant's measurement publishes: {per_message_us:.1f} us per message (rclpy's publish of "
+              "the message's exact bytes, through rcl and Fast DDS to its one subscriber), paid N times a "
+              "sample on the plant's one executor thread.", ""]
+    return lines + transport_lines(result) if "transport" in result else lines
+
+
+def transport_lines(result: dict) -> list[str]:
+    """What the transport alone costs each side per sample (the fan-out's ping and echoes), beside the loop."""
+    cost, n = result["transport"], result["size"]
+    rows = (("plant", "ping", cost["plant_us"], cost["ping_us"]),
+            (f"controllers ({result['deployment']})", "echoes", cost["controllers_us"], cost["echoes_us"]))
+    lines = ["CPU time per sample, all threads (/proc), of the same loop run without the sampler "
+             f"(cycle {cost['cycle_ms']:.3f} ms) and of a chained fan-out to {n} echoes deployed alike, run after it "
+             f"(round trip {cost['round_trip_ms']:.3f} ms): the fan-out's processes publish and take the same number "
+             "of messages a sample and do nothing else, so their CPU is rclpy's and Fast DDS's per-message cost; "
+             "the difference is the loop's own work.", "",
+             "| loop process | its CPU per sample (us) | fan-out process | its CPU per round trip (us) "
+             "| the loop's own work (us) | per generator (us) |", "|---|---:|---|---:|---:|---:|"]
+    for loop_name, floor_name, loop_us, floor_us in rows:
+        lines.append(f"| {loop_name} | {loop_us:.0f} | {floor_name} | {floor_us:.0f} | {loop_us - floor_us:.0f} "
+                     f"| {(loop_us - floor_us) / n:.1f} |")
+    per_message = (cost["ping_us"] + cost["echoes_us"]) / (2 * n)
+    return lines + ["", f"The transport's cost per message and side (a publish at one end, a take and its "
+                        f"callback at the other): {per_message:.1f} us of CPU, 2N messages a sample.", ""]

@@ -31,7 +31,8 @@ work in between: ``echo`` publishes every message it receives straight back,
   ``composed_controllers`` runs N controllers: the floor of the composed
   deployment.
 
-``ping`` prints one JSON line (round trips in ns, misses) and exits.
+``ping`` prints :data:`STARTED_LINE` when it sends its first ping, then at the end one JSON line (round
+trips in ns, misses, and its CPU time over the pinging: what the transport costs the plant's side) and exits.
 Run with ``python -m bench.pingpong echo|ping ...`` from the repository root.
 """
 
@@ -39,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import sys
 import time
 
@@ -52,6 +54,8 @@ from nni_msgs_adapter.ros.node_main import run_node
 PING_TOPIC = "bench/ping"
 PONG_TOPIC = "bench/pong"
 RESULT_PREFIX = "PINGPONG "
+#: What the ping prints when it sends its first ping (the echoes' CPU is counted from then).
+STARTED_LINE = "pingpong: pinging"
 #: Chained: an instant still unanswered after this long (wall time, s) is given up and the next one sent.
 CHAINED_TIMEOUT_S = 1.0
 
@@ -109,6 +113,8 @@ class Ping(Node):
             return
         self._start_timer.cancel()
         self._t0_ns = now
+        self._cpu_start_s = cpu_time_s()
+        print(STARTED_LINE, flush=True)
         if self.mode == "timed":
             self._tick_timer = self.create_timer(self.period_s, self._on_tick)
             # Ideal instants on the timer's own grid (its period in whole ns), as the plant's.
@@ -177,7 +183,14 @@ class Ping(Node):
             "echoes": len(self._pubs), "echo_round_trips_ns": self.echo_round_trips_ns,
             "echo_deadline_misses": self.echo_deadline_misses,
             "wall_s": (self._now_ns() - self._t0_ns) * 1e-9 if self._matched_ns else None,
+            "cpu_s": cpu_time_s() - self._cpu_start_s if self._matched_ns else None,
         }), flush=True)
+
+
+def cpu_time_s() -> float:
+    """This process's user and system CPU time so far, all threads (Fast DDS's too), s."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
 
 
 def topic(namespace: str, name: str) -> str:

@@ -212,6 +212,31 @@ def test_the_profile_section_gives_each_part_its_share_and_its_time_per_loop_sam
         {"network-profile": {"error": "py-spy failed"}})
 
 
+def test_the_profile_section_sets_each_process_beside_its_transport_alone():
+    transport = {"plant_us": 1500.0, "ping_us": 900.0, "controllers_us": 1200.0, "echoes_us": 1000.0,
+                 "cycle_ms": 1.3, "round_trip_ms": 1.0}
+    profile = {"case": "ieee39", "deployment": "composed", "sim_s": 2.0, "rate_hz": 50.0, "loop_samples": 100,
+               "wall_s": 1.0, "size": 10, "turnaround_ms": 0.4, "transport": transport,
+               "processes": [{"process": "plant", "cpu_s": 0.5, "samples_seen": 10, "parts": [("other", 10)]}]}
+    text = page({"network-profile": profile})
+    assert "| plant | 1500 | ping | 900 | 600 | 60.0 |" in text
+    assert "| controllers (composed) | 1200 | echoes | 1000 | 200 | 20.0 |" in text
+    assert "(cycle 1.300 ms) and of a chained fan-out to 10 echoes deployed alike" in text
+    assert "(a publish at one end, a take and its callback at the other): 95.0 us of CPU, 2N messages" in text
+
+
+def test_a_controllers_clock_reads_are_its_readers_not_its_publishes():
+    from bench.network_profile import CONTROLLER_PARTS, classify
+
+    on_pmu = "ControllerNode._on_pmu (nni_battery_controller/controller_node.py:60)"
+    stacks = (f"run_node (nni_msgs_adapter/ros/node_main.py:180);{on_pmu};PlantReaders.newest_clock_ns "
+              "(nni_battery_controller/controller_node.py:120);PolledReader.latest (nni_msgs_adapter/ros/loop_node.py:80) 4\n"
+              f"run_node (nni_msgs_adapter/ros/node_main.py:180);{on_pmu};StampedPublisher.publish "
+              "(nni_msgs_adapter/ros/loop_node.py:48) 6\n")
+    assert classify(stacks, CONTROLLER_PARTS) == {"/diagnostics and /clock readers": 4,
+                                                 "publish: commands and controller states": 6}
+
+
 @pytest.mark.parametrize(("added_ms", "verdict"), [(0.6, "met."), (1.2, "**not met**.")])
 def test_the_c37118_path_is_judged_on_the_p50_it_adds_at_50_per_s(added_ms, verdict):
     text = page({"c37118-loop": c37118_loop_result(added_ms)})
