@@ -157,6 +157,28 @@ def test_sigint_stops_every_composed_controller_cleanly(tmp_path):
         probe.close()
 
 
+def test_composed_controllers_read_the_clock_and_the_diagnostics_once_for_the_process(tmp_path):
+    """Three controllers in one process: one reader of /clock and one of /diagnostics in the ROS graph, both under
+    the host node (each controller's own took every lockstep /clock and every status array once more)."""
+    domain = fresh_domain_id()
+    probe = Probe(domain, ())
+
+    def readers(topic: str) -> list[str]:
+        return sorted(f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+                      for info in probe.node.get_subscriptions_info_by_topic(topic))
+
+    try:
+        with node_processes(tmp_path, domain) as start:
+            node = start("controllers", COMPOSED, {"namespaces": ["/gen1", "/gen2", "/gen3"]})
+            pmu = [f"/gen{i}/pmu" for i in (1, 2, 3)]
+            assert wait_until(lambda: all(readers(topic) == [f"{topic[:-4]}/controller"] for topic in pmu), 60.0), \
+                node.output()
+            assert readers(contract.TOPIC_CLOCK) == ["/composed_controllers"]
+            assert readers(contract.TOPIC_DIAGNOSTICS) == ["/composed_controllers"]
+    finally:
+        probe.close()
+
+
 def test_a_coi_controller_answers_only_complete_stamps_and_says_what_it_could_not_use(tmp_path):
     """Over DDS, /gen1's controller with /gen2 as neighbour (realtime stamps, wall clock).
 

@@ -200,6 +200,20 @@ def test_lockstep_steps_one_period_per_answer_at_exact_sample_instants():
     assert loop.channels[0].stats.turnaround.count == 1
 
 
+def test_lockstep_times_each_turnaround_once_and_every_generator_reports_it():
+    """From the last answer of a sample to the next measurement out: one value a sample, whatever N."""
+    loop = lockstep(channels=[paired_channel(), paired_channel(), paired_channel()])
+    loop.start(0)
+    loop.sent(1 * MS)
+    for index, arrival_ms in ((0, 2), (2, 3), (1, 4)):
+        loop.command(index, 0, 0.1, arrival_ms * MS)
+    loop.sent(4 * MS + 250_000)
+    summaries = [channel.summary() for channel in loop.channels]
+    assert loop.turnaround.count == 1
+    assert [s["turnaround_max_ms"] for s in summaries] == [0.25] * 3, "from the last answer (4 ms), not the first"
+    assert [s["latency_max_ms"] for s in summaries] == [1.0, 3.0, 2.0], "latency stays each generator's own"
+
+
 def test_lockstep_drops_answers_to_other_samples_and_times_out_to_zero():
     loop = lockstep()
     loop.start(0)
