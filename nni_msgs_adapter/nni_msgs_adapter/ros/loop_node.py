@@ -75,12 +75,11 @@ class PolledReader:
                                                latest.get_c_qos_profile())
 
     def latest(self) -> bytes | None:
-        """The CDR bytes of the newest message that arrived since the last call, None if none did."""
-        data = None
+        """The CDR bytes of the newest message that arrived since the last call, None if none did (one take: the
+        reader keeps only the newest)."""
         with self._handle:
-            while (taken := self._handle.take_message(self._msg_class, True)) is not None:
-                data = taken[0]
-        return data
+            taken = self._handle.take_message(self._msg_class, True)
+        return None if taken is None else taken[0]
 
     def get_publisher_count(self) -> int:
         return self._handle.get_publisher_count()
