@@ -3,6 +3,7 @@ composed, beside a chained fan-out to N echoes deployed alike; the cost per adde
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ from bench.common import (
     progress,
     verdict,
 )
-from bench.lockstep import lockstep_pair, lockstep_row, smib_pair, throughput_cells
+from bench.lockstep import generator_percentiles, lockstep_pair, lockstep_row, smib_pair, throughput_cells
 from nni_msgs_adapter.ros.processes import ChildError
 
 #: Issue 23: at N = 4 and 10, separate and composed, the median of the rounds within this factor of the fan-out
@@ -33,6 +34,10 @@ NETWORK_LOCKSTEP_CASES = ((None, 3, "separate"), ("kundur_two_area", 3, "separat
                           ("ieee39", 3, "separate"), ("ieee39", 3, "composed"), ("kundur_ring_52", 3, "composed"))
 NETWORK_LOCKSTEP_QUICK_CASES = ((None, 1, "separate"), ("kundur_two_area", 1, "separate"),
                                 ("kundur_two_area", 1, "composed"), ("kundur_ring_52", 1, "composed"))
+#: The separate rows also run the loop with the plant on a core of its own (its threads on CPU 0, the controllers'
+#: on the others) for the plant's own turnaround: shared, its publish burst wakes N controller processes that
+#: run on its core too. Not a deployment the demo makes; a measurement of where the turnaround goes.
+PLANT_CPU, PINNED_SIM_S = 0, 10.0
 
 
 def bench_network_lockstep(env, log_root: Path, cases, rate_hz: float, sim_duration_s: float,
@@ -76,8 +81,24 @@ def network_lockstep_row(env, log_root: Path, case, rounds: int, rate_hz: float,
             chained = pingpong(env, chained_dir, "chained", samples=part_samples, fanout=size,
                                composed=deployment == "composed")
             pairs.append(lockstep_pair(chained, run["summary"], rate_hz, label))
-    return {"case": label, "deployment": deployment, "generators": size, **lockstep_row(pairs, rate_hz),
-            "partial": partial}
+    row = {"case": label, "deployment": deployment, "generators": size, **lockstep_row(pairs, rate_hz),
+           "partial": partial}
+    if case is not None and deployment == "separate" and len(os.sched_getaffinity(0)) > 1:
+        pinned = network_loop(env, log_root / f"net_lockstep_{name}_pinned", case, "lockstep", rate_hz,
+                              min(PINNED_SIM_S, sim_duration_s), deployment, attach=plant_on_a_core_of_its_own)
+        first = next(iter(pinned["summary"].values()))
+        row["pinned"] = {"turnaround_ms": generator_percentiles(pinned["summary"], "turnaround")["p50"],
+                         "cycle_ms": float(first["run_wall_s"]) * 1e3 / int(first["samples"])}
+    return row
+
+
+def plant_on_a_core_of_its_own(plant_pid: int, controller_pids: list[int]) -> None:
+    """Every thread of the plant on ``PLANT_CPU``, every thread of the controllers on the other cores."""
+    cores = os.sched_getaffinity(0)
+    others = cores - {PLANT_CPU}
+    for pid, where in [(plant_pid, {PLANT_CPU})] + [(pid, others) for pid in controller_pids]:
+        for thread in os.listdir(f"/proc/{pid}/task"):
+            os.sched_setaffinity(int(thread), where)
 
 
 def per_generator_cost(rows: list[dict]) -> dict:
@@ -160,4 +181,12 @@ def network_lockstep_targets(rows: list[dict]) -> list[str]:
         turnaround = row["turnaround_ms"]["p50"]
         lines.append(f"- N = 10 ({row['deployment']}): the plant's turnaround p50 {turnaround:.3f} ms <= "
                      f"{TURNAROUND_TARGET_MS:g} ms: {verdict(turnaround <= TURNAROUND_TARGET_MS)}.")
-    return ["Targets (issue 23):", ""] + lines
+    pinned = [row for row in rows if "pinned" in row]
+    return ["Targets (issue 23):", ""] + lines + ([
+        "", "The plant on a core of its own (a run of each separate row with the plant's threads on CPU "
+        f"{PLANT_CPU} and the controllers' on the others, `sched_setaffinity` when the run starts; no target, "
+        "a measurement of where the turnaround goes: sharing the cores, the plant's burst of N measurements wakes "
+        "N controller processes that run on its core too):", ""] + [
+        f"- N = {row['generators']} (separate): turnaround p50 {row['pinned']['turnaround_ms']:.3f} ms (shared: "
+        f"{row['turnaround_ms']['p50']:.3f} ms), cycle {row['pinned']['cycle_ms']:.3f} ms (shared: "
+        f"{row['cycle_ms']:.3f} ms)." for row in pinned] if pinned else [])

@@ -133,6 +133,14 @@ def test_the_ring_and_the_turnaround_targets(throughput, turnaround, verdict):
     assert f"- N = 10 (separate): the plant's turnaround p50 {turnaround:.3f} ms <= 0.5 ms: {verdict}" in text
 
 
+def test_a_separate_row_says_the_plants_turnaround_on_a_core_of_its_own_beside_the_shared_one():
+    run = results()
+    run["network-lockstep"][2]["pinned"] = {"turnaround_ms": 0.42, "cycle_ms": 2.5}
+    text = page(run)
+    assert "- N = 10 (separate): turnaround p50 0.420 ms (shared: 0.200 ms), cycle 2.500 ms (shared: 0.500 ms)." in text
+    assert "The plant on a core of its own" not in page(results())
+
+
 @pytest.mark.parametrize(("composed", "separate", "floor", "verdicts"),
                          [(0, 3, 3, ("met.", "met.")), (1, 4, 3, ("**not met**.", "**not met**."))])
 def test_the_realtime_targets_count_misses_against_zero_and_the_floor(composed, separate, floor, verdicts):
