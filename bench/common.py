@@ -214,10 +214,8 @@ def run_network_plant(plant, controllers, case: str, mode: str, size: int, durat
         # teardown (0.1-0.3 s of CPU, a large share of a short run's).
         plant.wait_for_line(SUMMARY_PREFIX, max(1.0, limit_s - (run_started - started)))
         plant_cpu_s = cpu_seconds(plant.pid) - plant_cpu_started
-    except OSError:
-        pass  # gone already: through its rusage below
-    except ChildError:
-        pass  # exited without a summary, or past the limit: said below
+    except (OSError, ChildError):
+        pass  # gone already (its CPU through its rusage below), or no summary within the limit (said below)
     try:
         status = plant.wait_exit(max(1.0, limit_s - (time.monotonic() - started)))
     except ChildError:

@@ -106,10 +106,10 @@ class StampedBytes:
     def pack(self, stamp_ns: int, *values) -> bytes:
         if len(values) != self.count:
             raise TypeError(f"{self.count} values expected, got {len(values)}")
-        if self._text_length is not None and len(values[-1]) != self._text_length:
-            raise ValueError(f"the text slot takes {self._text_length} bytes, got {len(values[-1])}")
         if self._text_length is None:
             slots = self._slots.pack(*divmod(stamp_ns, 1_000_000_000), *values)
+        elif len(values[-1]) != self._text_length:
+            raise ValueError(f"the text slot takes {self._text_length} bytes, got {len(values[-1])}")
         else:  # the text (header.frame_id) comes before the values on the wire
             slots = self._slots.pack(*divmod(stamp_ns, 1_000_000_000), values[-1], *values[:-1])
         return (int.from_bytes(slots, "little") | self._fixed).to_bytes(self.size, "little")
