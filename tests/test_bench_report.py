@@ -137,7 +137,8 @@ def test_a_separate_row_says_the_plants_turnaround_on_a_core_of_its_own_beside_t
     run = results()
     run["network-lockstep"][2]["pinned"] = {"turnaround_ms": 0.42, "cycle_ms": 2.5}
     text = page(run)
-    assert "- N = 10 (separate): turnaround p50 0.420 ms (shared: 0.200 ms), cycle 2.500 ms (shared: 0.500 ms)." in text
+    assert ("- N = 10 (separate): turnaround p50 0.420 ms (shared: 0.200 ms), cycle 2.500 ms "
+            "(shared: 0.500 ms).") in text
     assert "The plant on a core of its own" not in page(results())
 
 
@@ -238,7 +239,8 @@ def test_a_controllers_clock_reads_are_its_readers_not_its_publishes():
 
     on_pmu = "ControllerNode._on_pmu (nni_battery_controller/controller_node.py:60)"
     stacks = (f"run_node (nni_msgs_adapter/ros/node_main.py:180);{on_pmu};PlantReaders.newest_clock_ns "
-              "(nni_battery_controller/controller_node.py:120);PolledReader.latest (nni_msgs_adapter/ros/loop_node.py:80) 4\n"
+              "(nni_battery_controller/controller_node.py:120);"
+              "PolledReader.latest (nni_msgs_adapter/ros/loop_node.py:80) 4\n"
               f"run_node (nni_msgs_adapter/ros/node_main.py:180);{on_pmu};StampedPublisher.publish "
               "(nni_msgs_adapter/ros/loop_node.py:48) 6\n")
     assert classify(stacks, CONTROLLER_PARTS) == {"/diagnostics and /clock readers": 4,

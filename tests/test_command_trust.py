@@ -318,7 +318,7 @@ def test_attack_6_allowed_tuning_safety_parameters_are_locked_during_a_run_and_g
                 client, close = parameter_client(domain, node)
                 try:
                     assert client.wait_for_services(timeout_sec=20.0)
-                    result = _call(client.set_parameters([Parameter(name, value=value)]))
+                    result = _call(lambda: client.set_parameters([Parameter(name, value=value)]))
                     results[(node, name, value)] = result.results[0]
                 finally:
                     close()

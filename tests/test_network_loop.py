@@ -201,12 +201,12 @@ def test_runtime_changes_are_rejected_with_their_reason(tmp_path):
         controller, close_controller = parameter_client(domain, "/gen1/controller")
         try:
             assert plant.wait_for_services(timeout_sec=20.0) and controller.wait_for_services(timeout_sec=20.0)
-            bus = _call(plant.set_parameters([Parameter("fault_bus", value=8)])).results[0]
+            bus = _call(lambda: plant.set_parameters([Parameter("fault_bus", value=8)])).results[0]
             assert not bus.successful and bus.reason == "fault_bus cannot change once the node is up (read at start)"
-            assert _call(plant.get_parameters(["fault_bus"])).values[0].integer_value == 7
-            angle = _call(controller.set_parameters([Parameter("reference_angle_rad", value=0.3)])).results[0]
+            assert _call(lambda: plant.get_parameters(["fault_bus"])).values[0].integer_value == 7
+            angle = _call(lambda: controller.set_parameters([Parameter("reference_angle_rad", value=0.3)])).results[0]
             assert not angle.successful and "applies to restoring_power measured only" in angle.reason
-            both = _call(controller.set_parameters_atomically([Parameter("restoring_power", value="measured"),
+            both = _call(lambda: controller.set_parameters_atomically([Parameter("restoring_power", value="measured"),
                                                                Parameter("reference_angle_rad", value=0.3)]))
             assert both.result.successful, both.result.reason  # before a run: measured mode with its angle
         finally:
