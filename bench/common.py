@@ -61,6 +61,13 @@ def printed_json(output: str, prefix: str) -> dict | None:
     return None
 
 
+def cycle_ms(summary: dict) -> float:
+    """Wall time per lockstep sample (ms) of a run, from the plant's final diagnostics (``{namespace: values}``:
+    every generator has the run's wall time and samples)."""
+    first = next(iter(summary.values()))
+    return float(first["run_wall_s"]) * 1e3 / int(first["samples"])
+
+
 def rss_kib(pid: int) -> int:
     """Resident set size of a running process, KiB (``VmRSS`` of /proc/<pid>/status)."""
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
@@ -109,12 +116,12 @@ def pingpong(env: dict, log_dir: Path, mode: str, rate_hz: float = 100.0, durati
         try:
             echoes = [child for name, child in procs.children.items() if name != "ping"]
             procs["ping"].wait_for_line(STARTED_LINE, limit_s)
-            echo_cpu_s = -sum(cpu_seconds(child.pid) for child in echoes)
+            echo_cpu_started_s = sum(cpu_seconds(child.pid) for child in echoes)
             status = procs["ping"].wait_exit(limit_s)
             if status != 0:
                 raise RuntimeError(f"ping-pong ping exited with {status}: {procs['ping'].tail(400)}")
             echo_rss = [rss_kib(child.pid) for child in echoes]
-            echo_cpu_s += sum(cpu_seconds(child.pid) for child in echoes)
+            echo_cpu_s = sum(cpu_seconds(child.pid) for child in echoes) - echo_cpu_started_s
         finally:
             stop_together(procs)
         result = printed_json(procs["ping"].output(), RESULT_PREFIX)

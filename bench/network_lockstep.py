@@ -11,6 +11,7 @@ import numpy as np
 from bench.common import (
     NETWORK_BATTERY_LIMIT_PU,
     NETWORK_RATE_HZ,
+    cycle_ms,
     network_loop,
     not_completed,
     pingpong,
@@ -34,10 +35,10 @@ NETWORK_LOCKSTEP_CASES = ((None, 3, "separate"), ("kundur_two_area", 3, "separat
                           ("ieee39", 3, "separate"), ("ieee39", 3, "composed"), ("kundur_ring_52", 3, "composed"))
 NETWORK_LOCKSTEP_QUICK_CASES = ((None, 1, "separate"), ("kundur_two_area", 1, "separate"),
                                 ("kundur_two_area", 1, "composed"), ("kundur_ring_52", 1, "composed"))
-#: The separate rows also run the loop with the plant on a core of its own (its threads on CPU 0, the controllers'
-#: on the others) for the plant's own turnaround: shared, its publish burst wakes N controller processes that
-#: run on its core too. Not a deployment the demo makes; a measurement of where the turnaround goes.
-PLANT_CPU, PINNED_SIM_S = 0, 10.0
+#: The separate rows also run the loop for this long with the plant on a core of its own (its threads on one core,
+#: the controllers' on the others) for the plant's own turnaround: shared, its publish burst wakes N controller
+#: processes that run on its core too. Not a deployment the demo makes; a measurement of where the turnaround goes.
+PINNED_SIM_S = 10.0
 
 
 def bench_network_lockstep(env, log_root: Path, cases, rate_hz: float, sim_duration_s: float,
@@ -86,17 +87,21 @@ def network_lockstep_row(env, log_root: Path, case, rounds: int, rate_hz: float,
     if case is not None and deployment == "separate" and len(os.sched_getaffinity(0)) > 1:
         pinned = network_loop(env, log_root / f"net_lockstep_{name}_pinned", case, "lockstep", rate_hz,
                               min(PINNED_SIM_S, sim_duration_s), deployment, attach=plant_on_a_core_of_its_own)
-        first = next(iter(pinned["summary"].values()))
         row["pinned"] = {"turnaround_ms": generator_percentiles(pinned["summary"], "turnaround")["p50"],
-                         "cycle_ms": float(first["run_wall_s"]) * 1e3 / int(first["samples"])}
+                         "cycle_ms": cycle_ms(pinned["summary"]), "plant_cpu": plant_cpu()}
     return row
 
 
+def plant_cpu() -> int:
+    """The core the plant gets of its own: the first this process may use."""
+    return min(os.sched_getaffinity(0))
+
+
 def plant_on_a_core_of_its_own(plant_pid: int, controller_pids: list[int]) -> None:
-    """Every thread of the plant on ``PLANT_CPU``, every thread of the controllers on the other cores."""
-    cores = os.sched_getaffinity(0)
-    others = cores - {PLANT_CPU}
-    for pid, where in [(plant_pid, {PLANT_CPU})] + [(pid, others) for pid in controller_pids]:
+    """Every thread of the plant on :func:`plant_cpu`, every thread of the controllers on the other cores."""
+    own = plant_cpu()
+    others = os.sched_getaffinity(0) - {own}
+    for pid, where in [(plant_pid, {own})] + [(pid, others) for pid in controller_pids]:
         for thread in os.listdir(f"/proc/{pid}/task"):
             os.sched_setaffinity(int(thread), where)
 
@@ -184,7 +189,8 @@ def network_lockstep_targets(rows: list[dict]) -> list[str]:
     pinned = [row for row in rows if "pinned" in row]
     return ["Targets (issue 23):", ""] + lines + ([
         "", "The plant on a core of its own (a run of each separate row with the plant's threads on CPU "
-        f"{PLANT_CPU} and the controllers' on the others, `sched_setaffinity` when the run starts; no target, "
+        f"{pinned[0]['pinned']['plant_cpu']} and the controllers' on the others, `sched_setaffinity` when the run "
+        "starts; no target, "
         "a measurement of where the turnaround goes: sharing the cores, the plant's burst of N measurements wakes "
         "N controller processes that run on its core too):", ""] + [
         f"- N = {row['generators']} (separate): turnaround p50 {row['pinned']['turnaround_ms']:.3f} ms (shared: "

@@ -21,7 +21,7 @@ from collections import Counter
 from functools import lru_cache
 from pathlib import Path
 
-from bench.common import NETWORK_RATE_HZ, network_loop, not_completed, pingpong, progress
+from bench.common import NETWORK_RATE_HZ, cycle_ms, network_loop, not_completed, pingpong, progress
 from bench.lockstep import generator_percentiles
 from nni_msgs_adapter.ros.processes import ChildError
 
@@ -169,7 +169,7 @@ def bench_network_profile(env, log_root: Path, run=PROFILE_RUN, rate_hz: float =
     transport = {"plant_us": plain["plant_cpu_s"] * 1e6 / samples, "ping_us": fanout["cpu_s"] * 1e6 / round_trips,
                  "controllers_us": sum(plain["controller_cpu_s"]) * 1e6 / samples,
                  "echoes_us": fanout["echo_cpu_s"] * 1e6 / round_trips,
-                 "cycle_ms": next(iter(plain["summary"].values()))["run_wall_s"] * 1e3 / samples,
+                 "cycle_ms": cycle_ms(plain["summary"]),
                  "round_trip_ms": fanout["wall_s"] * 1e3 / round_trips}
     return {"case": case, "deployment": deployment, "sim_s": sim_s, "rate_hz": rate_hz, "loop_samples": samples,
             "wall_s": loop["wall_s"], "size": loop["size"], "processes": processes, "transport": transport,

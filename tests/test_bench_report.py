@@ -135,10 +135,11 @@ def test_the_ring_and_the_turnaround_targets(throughput, turnaround, verdict):
 
 def test_a_separate_row_says_the_plants_turnaround_on_a_core_of_its_own_beside_the_shared_one():
     run = results()
-    run["network-lockstep"][2]["pinned"] = {"turnaround_ms": 0.42, "cycle_ms": 2.5}
+    run["network-lockstep"][2]["pinned"] = {"turnaround_ms": 0.42, "cycle_ms": 2.5, "plant_cpu": 0}
     text = page(run)
     assert ("- N = 10 (separate): turnaround p50 0.420 ms (shared: 0.200 ms), cycle 2.500 ms "
             "(shared: 0.500 ms).") in text
+    assert "with the plant's threads on CPU 0 and the controllers' on the others" in text
     assert "The plant on a core of its own" not in page(results())
 
 
