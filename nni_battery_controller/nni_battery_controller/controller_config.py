@@ -6,10 +6,10 @@ read on the first call of :func:`parameters` (not at import). Pure: no rclpy.
 Which parameters a mode needs (:class:`ControllerConfig` refuses the others' violations only where they matter):
 
 * ``restoring_power model`` (the SMIB): the plant model ``p_mech_pu < p_max_pu`` (d is measured from
-  delta_bar = asin(P_M/P_max)), ``inertia_h_s`` and ``f0_hz`` for W_hat;
+  delta_bar = asin(P_M/P_max)), ``inertia_h_s`` and ``f0_hz`` for W_hat (``f0_hz`` also for the speed laws' dw, in every mode);
 * ``restoring_power measured`` (a generator in a network): ``p_mech_pu`` (its pre-fault electrical power) and
   ``reference_angle_rad``; no SMIB model is built, so P_M >= P_max (IEEE 39's G10 carries 1.0 pu of its
-  rating) is no error, and ``p_max_pu``, ``inertia_h_s``, ``f0_hz`` are not used;
+  rating) is no error, and ``p_max_pu`` and ``inertia_h_s`` are not used;
 * ``reference coi`` (measured only): ``coi_namespaces`` and ``coi_inertias``, with d = delta_i - delta_COI -
   ``reference_angle_rad``, the reference angle then being the generator's pre-fault angle relative to the
   centre of inertia (delta_bar_i - sum_j M_j delta_bar_j / sum_j M_j), as ``nni-simulate --reference coi``.
@@ -21,6 +21,7 @@ import functools
 import math
 
 from nni_battery_controller.law import ControllerParams
+from nni_battery_controller.laws import GAIN_PARAMETERS, LAW_NAMES, law_from_parameters
 from nni_battery_controller.network_sim import ANGLE_REFERENCES
 from nni_msgs_adapter.ros.defaults import controller_defaults
 from nni_msgs_adapter.ros.ros_params import Spec, allow_tuning, locked_changes
@@ -32,16 +33,22 @@ def parameters() -> tuple[Spec, ...]:
     """The controller's parameters, their defaults from ``config/controller.yaml`` (read once, on first use)."""
     defaults = controller_defaults()
     return (
+        Spec("law", defaults["law"], "The battery law: nni (the paper's saturated H3-hat), nni-unsaturated (its H3, "
+             "output clipped at b), droop, vsm (virtual inertia and damping) or pss (PSS1A on speed).",
+             choices=LAW_NAMES),
         Spec("tau_s", defaults["tau_s"], "Phase-lead time constant tau, s.", 1e-4, 100.0),
         Spec("gain_k", defaults["gain_k"], "Gain K, pu/rad (must be < gain_l).", 1e-6, 100.0),
         Spec("gain_l", defaults["gain_l"], "Gain L, pu/rad (must be > gain_k: stability condition K - L < 0).", 1e-6, 100.0),
         Spec("alpha", defaults["alpha"], "Saturated-mode decay factor alpha (x3' = -(alpha/K) x3).", 1e-6, 100.0),
+        *(Spec(name, defaults[name], f"Law {law}: {GAIN_TEXT[field]}.", *GAIN_RANGES[field])
+          for law, names in GAIN_PARAMETERS.items() for name, field in names.items()),
         Spec("battery_limit_pu", defaults["battery_limit_pu"], "Battery power limit b, pu; .inf for unlimited, 0 for none.",
              0.0, math.inf),
         Spec("p_mech_pu", defaults["p_mech_pu"], "Model of the plant: pre-fault mechanical power P_M, pu.", 0.0, 1e3),
         Spec("p_max_pu", defaults["p_max_pu"], "Model of the plant: maximum transfer P_max, pu.", 1e-6, 1e3),
         Spec("inertia_h_s", defaults["inertia_h_s"], "Model of the plant: inertia H, s (for W_hat only).", 1e-3, 1e3),
-        Spec("f0_hz", defaults["f0_hz"], "Model of the plant: nominal frequency, Hz (for W_hat only).", 1.0, 1e3),
+        Spec("f0_hz", defaults["f0_hz"], "Model of the plant: nominal frequency, Hz (for W_hat, and the speed laws' "
+             "dw = (omega - omega0)/omega0: a network's own f0 there).", 1.0, 1e3),
         Spec("sample_rate_hz", defaults["sample_rate_hz"], "PMU reporting rate the law is discretised for, frames/s.", 10.0, 1000.0),
         Spec("stale_after_periods", defaults["stale_after_periods"], "Measurements missing for this many periods: zero power, STALE.", 1, 10000),
         Spec("stamp_tolerance_s", defaults["stamp_tolerance_s"], "A measurement stamped further than this from the controller's "
@@ -67,6 +74,15 @@ def parameters() -> tuple[Spec, ...]:
         allow_tuning(defaults["allow_tuning"]),
     )
 
+
+#: What each speed-law gain is (units: pu of the machine's rating; dw = (omega - omega0)/omega0) and its range.
+GAIN_TEXT = {"k_f": "droop gain K_f, pu power per pu frequency", "h_v_s": "virtual inertia constant H_v, s",
+             "d_v": "damping D_v, pu power per pu frequency", "t_f_s": "filter T_f of the measured derivative, s",
+             "k_s": "PSS gain K_s, pu power per pu frequency", "t_w_s": "washout T_w, s", "t1_s": "lead T_1, s",
+             "t2_s": "lag T_2, s", "t3_s": "lead T_3, s", "t4_s": "lag T_4, s"}
+GAIN_RANGES = {"k_f": (1e-6, 1e5), "h_v_s": (0.0, 1e3), "d_v": (0.0, 1e5), "t_f_s": (1e-4, 10.0),
+               "k_s": (1e-6, 1e5), "t_w_s": (1e-3, 100.0), "t1_s": (0.0, 100.0), "t2_s": (1e-4, 100.0),
+               "t3_s": (0.0, 100.0), "t4_s": (1e-4, 100.0)}
 
 #: With allow_tuning, live-tunable while running (validated, K < L): the law's gains. Everything else is locked
 #: once the controller answers measurements: the limit b, the plant model, the rate and the input gate's bounds.
@@ -107,11 +123,15 @@ class ControllerConfig:
         self.values = values
         self.ctrl = ControllerParams(values["tau_s"], values["gain_k"], values["gain_l"], values["alpha"],
                                      values["battery_limit_pu"])
+        #: The law with its gains and b (:mod:`.laws`).
+        self.law = law_from_parameters(values["law"], values, self.ctrl)
         self.measures_power = values["restoring_power"] == "measured"
         self.p_mech_pu = values["p_mech_pu"]
         #: The SMIB model (g(d), delta_bar, W_hat); None for g measured, which uses none of it.
         self.plant = None if self.measures_power else SmibParams(
             values["inertia_h_s"], 0.0, values["p_mech_pu"], values["p_max_pu"], values["f0_hz"])
+        #: The nominal frequency the speed laws' dw is measured against, rad/s.
+        self.omega0_rad_s = 2.0 * math.pi * values["f0_hz"]
         self.reference_rad = reference_angle(values, self.plant)
         #: reference coi: ``(namespaces, weights M_j / sum M, own index)``, else None.
         self.coi = centre_of_inertia(values, namespace)

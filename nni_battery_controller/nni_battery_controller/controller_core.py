@@ -46,7 +46,7 @@ import math
 from typing import NamedTuple
 
 from nni_battery_controller.input_gate import MAX_PLAUSIBLE_ANGLE_RAD, InputGate, Verdict
-from nni_battery_controller.law import ControllerParams, SampledController, closed_loop_lyapunov
+from nni_battery_controller.law import ControllerParams, closed_loop_lyapunov
 from nni_plant_sim.model import SmibParams
 
 
@@ -66,11 +66,13 @@ class Answer(NamedTuple):
     saturated: bool
     plant: SmibParams | None  # None: g was measured (a generator in a network), W_hat is not defined
     ctrl: ControllerParams
+    law: str = "nni"  # W_hat is the nni law's Lyapunov candidate: NaN for the others
 
     @property
     def w_hat(self) -> float:
-        """The closed-loop Lyapunov candidate W_hat at this sample (computed after the command is out); NaN for g measured."""
-        if self.plant is None:
+        """The closed-loop Lyapunov candidate W_hat at this sample (computed after the command is out); NaN for g measured
+        and for the laws other than nni (it is that law's certificate)."""
+        if self.plant is None or self.law != "nni":
             return math.nan
         return float(closed_loop_lyapunov(self.angle_dev_rad, self.speed_rad_s, self.x3, self.plant, self.ctrl))
 
@@ -95,20 +97,22 @@ class CentreOfInertia:
         self.pending: dict[int, list] = {}
         self.counts = dict.fromkeys(COI_COUNTERS, 0)
 
-    def add(self, index: int, stamp_ns: int, delta_rad: float, own=None) -> tuple | None:
-        """Generator ``index``'s angle at ``stamp_ns`` (``own``: the own measurement, kept with its stamp).
+    def add(self, index: int, stamp_ns: int, delta_rad: float, own=None, speed_rad_s: float = 0.0) -> tuple | None:
+        """Generator ``index``'s angle and speed at ``stamp_ns`` (``own``: the own measurement, kept with its stamp).
 
-        ``(delta_COI, own)`` once the stamp is complete, else None.
+        ``(delta_COI, own, speed_COI)`` once the stamp is complete, else None.
         """
-        if index != self.own and not (math.isfinite(delta_rad) and abs(delta_rad) <= MAX_PLAUSIBLE_ANGLE_RAD):
+        if index != self.own and not (math.isfinite(delta_rad) and abs(delta_rad) <= MAX_PLAUSIBLE_ANGLE_RAD
+                                      and math.isfinite(speed_rad_s)):
             self.counts["coi_rejected"] += 1
             return None
-        entry = self.pending.pop(stamp_ns, None) or [[None] * len(self.weights), None]
+        entry = self.pending.pop(stamp_ns, None) or [[None] * len(self.weights), None, [0.0] * len(self.weights)]
         if entry[0][index] is not None:  # a repeated sample of a stamp still waiting: the first one stands
             self.counts["coi_rejected"] += 1
             self.pending[stamp_ns] = entry
             return None
         entry[0][index] = delta_rad
+        entry[2][index] = speed_rad_s
         if index == self.own:
             entry[1] = own
         if None in entry[0]:
@@ -118,7 +122,8 @@ class CentreOfInertia:
             return None
         for older in list(self.pending):  # every stamp that began before this one and is still short of samples
             self.give_up(older)
-        return math.fsum(w * delta for w, delta in zip(self.weights, entry[0])), entry[1]
+        return (math.fsum(w * delta for w, delta in zip(self.weights, entry[0])), entry[1],
+                math.fsum(w * speed for w, speed in zip(self.weights, entry[2])))
 
     def give_up(self, stamp_ns: int) -> None:
         """Drop a stamp that will not be answered (counted)."""
@@ -131,7 +136,7 @@ class ControllerCore:
 
     def __init__(self, config):
         self._configure(config)
-        self.law = SampledController(config.plant, config.ctrl, config.period_s)
+        self.law = config.law.sampled(config.plant, config.period_s, config.omega0_rad_s)
         self.gate = InputGate(*config.gate_bounds)
         self.coi = None if config.coi is None else CentreOfInertia(*config.coi[1:])
         self._reported = {}  # the coi counters at the last status
@@ -160,7 +165,10 @@ class ControllerCore:
     def reconfigure(self, config) -> None:
         """New gains or bounds; the law's state is kept (the angle reference never changes: read at start)."""
         self._configure(config)
-        self.law = SampledController(config.plant, config.ctrl, config.period_s, x3=self.law.x3)
+        state = self.law
+        self.law = config.law.sampled(config.plant, config.period_s, config.omega0_rad_s, x3=state.x3)
+        if config.law.uses_speed and state.spec.name == config.law.name:
+            self.law.z = state.z
         self.gate.configure(*config.gate_bounds)
 
     def receive(self, index: int, reading: tuple | None, effort, writers: int, arrival_ns: int,
@@ -186,18 +194,21 @@ class ControllerCore:
         if reading is None:
             self.coi.counts["coi_rejected"] += 1
             return None
-        complete = self.coi.add(index, reading[0], reading[1], (reading, p_elec) if own else None)
+        complete = self.coi.add(index, reading[0], reading[1], (reading, p_elec) if own else None, reading[2])
         if complete is None:
             return None
-        coi_rad, ((stamp_ns, delta_rad, speed_rad_s), p_elec) = complete
-        return self.measurement(stamp_ns, delta_rad, speed_rad_s, reference_ns, arrival_ns, p_elec, coi_rad)
+        coi_rad, ((stamp_ns, delta_rad, speed_rad_s), p_elec), coi_speed = complete
+        return self.measurement(stamp_ns, delta_rad, speed_rad_s, reference_ns, arrival_ns, p_elec, coi_rad,
+                                coi_speed)
 
     def measurement(self, stamp_ns: int, delta_rad: float, speed_rad_s: float, reference_ns: int,
-                    arrival_ns: int, p_elec_pu: float = math.nan, coi_rad: float = 0.0) -> Answer | None:
+                    arrival_ns: int, p_elec_pu: float = math.nan, coi_rad: float = 0.0,
+                    coi_speed_rad_s: float = 0.0) -> Answer | None:
         """The answer to one measurement, or None if the gate dropped it.
 
         ``p_elec_pu``, the measured electrical power, is used when g is measured (and must then be finite);
-        ``coi_rad``: the centre of inertia's angle d is measured against (reference coi).
+        ``coi_rad``, ``coi_speed_rad_s``: the centre of inertia's angle and speed that d and the speed
+        laws' input are measured against (reference coi).
         """
         if self.measures_power and not math.isfinite(p_elec_pu):
             self.gate.counts[Verdict.NON_FINITE.value] += 1
@@ -209,11 +220,14 @@ class ControllerCore:
         if verdict.resets:  # the law's state no longer describes the plant: restart from steady state
             self.law.reset()
         angle_dev, x3 = delta_rad - coi_rad - self._reference_rad, self.law.x3
+        speed = speed_rad_s - coi_speed_rad_s
         if self.measures_power:
-            power, w, saturated = self.law.step(angle_dev, self.config.p_mech_pu - p_elec_pu)
-            return Answer(stamp_ns, power, angle_dev, speed_rad_s, x3, w, saturated, None, self.config.ctrl)
-        power, w, saturated = self.law.step(angle_dev)
-        return Answer(stamp_ns, power, angle_dev, speed_rad_s, x3, w, saturated, self.config.plant, self.config.ctrl)
+            power, w, saturated = self.law.step(angle_dev, speed, self.config.p_mech_pu - p_elec_pu)
+            return Answer(stamp_ns, power, angle_dev, speed_rad_s, x3, w, saturated, None, self.config.ctrl,
+                          self.config.law.name)
+        power, w, saturated = self.law.step(angle_dev, speed)
+        return Answer(stamp_ns, power, angle_dev, speed_rad_s, x3, w, saturated, self.config.plant, self.config.ctrl,
+                      self.config.law.name)
 
     def end_of_run(self) -> bool:
         """The plant says its run has ended; True if that is news (a run was going on and had not ended)."""

@@ -70,7 +70,6 @@ from nni_battery_controller.network_deployment import (
     battery_limits,
     controller_parameters,
     controller_readbacks,
-    default_law,
     generator_limits,
     namespaces,
     participants,
@@ -79,7 +78,8 @@ from nni_battery_controller.network_deployment import (
     scenario_parameters,
     start_controllers,
 )
-from nni_battery_controller.network_sim import ANGLE_REFERENCES, NetworkLaw, assess_network
+from nni_battery_controller.network_sim import ANGLE_REFERENCES, assess_network
+from nni_battery_controller.options import add_network_law_options, network_laws_of
 from nni_msgs_adapter.recording.runs import network_trajectory, read_generator_runs
 from nni_msgs_adapter.c37118.cli import summary_line
 from nni_msgs_adapter.ros import contract
@@ -93,6 +93,7 @@ from nni_msgs_adapter.ros.cli_support import (
     run_cli,
 )
 from nni_msgs_adapter.ros.command_auth import run_key
+from nni_msgs_adapter.ros.defaults import controller_defaults
 from nni_msgs_adapter.ros.processes import ChildError, Supervisor, with_participants
 from nni_msgs_adapter.ros.readback import expected_parameters
 from nni_msgs_adapter.viewing.bridge_protocol import PROGRESS_PREFIX
@@ -101,8 +102,6 @@ from nni_plant_sim.network_plant_node import SUMMARY_PREFIX, parameters as plant
 
 PROG = "nni-demo"
 PLANT = "nni_plant_sim.network_plant_node"
-#: (option dest, NetworkLaw field) of each gain.
-GAINS = (("tau", "tau_s"), ("gain_k", "gain_k"), ("gain_l", "gain_l"), ("alpha", "alpha"))
 #: The plant's counters shown per generator: the trust counters (any non-zero one compromises a run) and
 #: those of commands dropped or clipped on the way to the battery.
 SHOWN_COUNTERS = (*TRUST_COUNTERS, "expired_commands", "invalid_commands", "clipped_commands")
@@ -147,11 +146,7 @@ def build_parser() -> OneLineParser:
                         help="the controllers' angle reference: pmu (own angle vs nominal frequency; default) or coi "
                              "(relative to the centre of inertia: each controller reads every generator's PMU)")
     add_scenario_options(parser.add_argument_group("disturbance at t = 0 (as nni-simulate --case)"))
-    gains = parser.add_argument_group("controller gains (pu of each machine's rating; one value or one per generator; "
-                                      "default: the controller node's)")
-    for (dest, _), flag, text in zip(GAINS, ("--tau", "--K", "--L", "--alpha"), ("tau, s", "K, pu/rad", "L, pu/rad",
-                                                                                 "alpha")):
-        gains.add_argument(flag, dest=dest, type=positive_float, nargs="+", default=None, help=text)
+    add_network_law_options(parser)
     return parser
 
 
@@ -171,9 +166,8 @@ def parse_arguments(argv=None):
     args.net = net = load_network(args.case)
     args.scenario_object, args.description, _ = make_scenario(net, args)
     args.scenario_values = scenario_parameters(net, args.scenario_object, args.trip_line or ())
-    defaults = default_law(net)
-    args.law = NetworkLaw.uniform(net, *(getattr(defaults, name) if getattr(args, dest) is None else getattr(args, dest)
-                                         for dest, name in GAINS), reference=args.reference)
+    name = args.law or controller_defaults()["law"]
+    args.law = network_laws_of(args, net, args.reference, (name,))[name]
     args.gen_limits = generator_limits(args.gen_b, net.size)
     args.stream = stream_parameters(args, given_options(argv), float(net.f0_hz))
     for b in args.b:
@@ -396,11 +390,7 @@ def main(argv=None) -> int:
         print(f"{PROG}: {args.case}, {net.size} generators ({deployment}, /{spaces[0]} .. /{spaces[-1]}), {args.mode},"
               f" {args.rate:g} frames/s, {args.duration:g} s per run, domain {domain}"
               + (", measurements through C37.118" if args.measurements == "c37118" else ""))
-        law = args.law
-        gains = ", ".join(f"{name} {'/'.join(f'{v:g}' for v in sorted(set(values.tolist())))}"
-                          for name, values in (("tau", law.tau_s), ("K", law.gain_k), ("L", law.gain_l),
-                                               ("alpha", law.alpha)))
-        print(f"  {args.description}; g measured, angle reference {args.reference}; {gains}")
+        print(f"  {args.description}; g measured, angle reference {args.reference}; law {args.law.describe()}")
         if wait_text(args):
             print(f"  {wait_text(args)}")
         results, plotted = [], []

@@ -22,6 +22,8 @@ import yaml
 
 from nni_battery_controller.controller_config import generator_parameters
 from nni_battery_controller.controller_config import parameters as controller_node_parameters
+from nni_battery_controller.law import ControllerParams
+from nni_battery_controller.laws import GAIN_PARAMETERS, law_from_parameters
 from nni_battery_controller.network_sim import NetworkLaw
 from nni_msgs_adapter.ros.defaults import controller_defaults
 from nni_msgs_adapter.ros.readback import expected_parameters
@@ -77,10 +79,21 @@ def battery_limits(n: int, b: float, overrides: dict[int, float]) -> np.ndarray:
     return limits
 
 
-def default_law(net) -> NetworkLaw:
-    """The controller node's default gains (config/controller.yaml) at every generator."""
+def default_law(net, name: str | None = None) -> NetworkLaw:
+    """The controller node's default law (or ``name``) with its default gains (config/controller.yaml) at every generator."""
     values = controller_defaults()
-    return NetworkLaw.uniform(net, values["tau_s"], values["gain_k"], values["gain_l"], values["alpha"])
+    name = name or values["law"]
+    gains = law_from_parameters(name, values, ControllerParams()).gains
+    return NetworkLaw.uniform(net, values["tau_s"], values["gain_k"], values["gain_l"], values["alpha"], name=name,
+                              gains=gains)
+
+
+def law_parameters(law: NetworkLaw, index: int) -> dict:
+    """Generator ``index``'s law as controller node parameters: the law, the NNI gains and the speed law's."""
+    speed = {} if law.gains is None else {
+        parameter: float(getattr(law.gains, field)) for parameter, field in GAIN_PARAMETERS[law.name].items()}
+    return {"law": law.name, "tau_s": float(law.tau_s[index]), "gain_k": float(law.gain_k[index]),
+            "gain_l": float(law.gain_l[index]), "alpha": float(law.alpha[index]), **speed}
 
 
 def controller_parameters(net, index: int, limit_pu: float, rate_hz: float, law: NetworkLaw) -> dict:
@@ -90,8 +103,7 @@ def controller_parameters(net, index: int, limit_pu: float, rate_hz: float, law:
     :func:`controller_config.generator_parameters` gives the generator's own values.
     """
     return {**generator_parameters(net, index, law.reference), "battery_limit_pu": float(limit_pu),
-            "sample_rate_hz": float(rate_hz), "tau_s": float(law.tau_s[index]), "gain_k": float(law.gain_k[index]),
-            "gain_l": float(law.gain_l[index]), "alpha": float(law.alpha[index])}
+            "sample_rate_hz": float(rate_hz), "f0_hz": float(net.f0_hz), **law_parameters(law, index)}
 
 
 def default_fault_bus(case: str) -> int:

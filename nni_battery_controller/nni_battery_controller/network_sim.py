@@ -1,4 +1,4 @@
-"""The saturated H3-hat at every generator of a network, sampled at the PMU rate, offline.
+"""A battery law (:mod:`.laws`; the saturated H3-hat by default) at every generator of a network, sampled at the PMU rate, offline.
 
 Per generator i, with local information only (its own angle and the electrical
 power a PMU at its terminals measures):
@@ -24,7 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nni_battery_controller.law import ControllerParams, sampled_step
+from nni_battery_controller.law import ControllerParams
+from nni_battery_controller.laws import DEFAULT_LAW, SPEED_LAWS, ArrayLaw, Law
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.link import NO_LINK, DelayLine, Link, integrate_through
 from nni_plant_sim.network import Network, electrical_power
@@ -47,9 +48,11 @@ def per_generator(value, n: int, name: str) -> np.ndarray:
 
 @dataclass(frozen=True)
 class NetworkLaw:
-    """Gains of the H3-hat at each generator (pu of the machine's rating), each checked by ControllerParams.
+    """One law (:mod:`.laws`) at each generator, its gains in pu of the machine's rating.
 
-    ``K_i < L_i`` is checked per generator; a violation names the generator and the condition.
+    The NNI laws' gains (tau, K, L, alpha) may differ per generator, ``K_i < L_i``
+    checked for each (a violation names the generator and the condition); a
+    speed law's ``gains`` (:data:`.laws.GAINS`) are every generator's.
     """
 
     net: Network
@@ -58,10 +61,13 @@ class NetworkLaw:
     gain_l: np.ndarray
     alpha: np.ndarray
     reference: str = "pmu"
+    name: str = DEFAULT_LAW
+    gains: object = None
 
     def __post_init__(self) -> None:
         if self.reference not in ANGLE_REFERENCES:
             raise ValueError(f"angle reference must be one of {', '.join(ANGLE_REFERENCES)}, got {self.reference!r}")
+        object.__setattr__(self, "gains", Law(self.name, gains=self.gains).gains)
         for i, name in enumerate(self.net.names):
             try:
                 ControllerParams(float(self.tau_s[i]), float(self.gain_k[i]), float(self.gain_l[i]),
@@ -70,11 +76,29 @@ class NetworkLaw:
                 raise ValueError(f"generator {name}: {error}") from None
 
     @classmethod
-    def uniform(cls, net: Network, tau_s, gain_k, gain_l, alpha, reference: str = "pmu") -> "NetworkLaw":
-        """From one value or one per generator of each gain."""
+    def uniform(cls, net: Network, tau_s, gain_k, gain_l, alpha, reference: str = "pmu", name: str = DEFAULT_LAW,
+                gains=None) -> "NetworkLaw":
+        """From one value or one per generator of each NNI gain; ``name`` and ``gains``: the law (default nni)."""
         n = net.size
         return cls(net, per_generator(tau_s, n, "tau"), per_generator(gain_k, n, "K"), per_generator(gain_l, n, "L"),
-                   per_generator(alpha, n, "alpha"), reference)
+                   per_generator(alpha, n, "alpha"), reference, name, gains)
+
+    @property
+    def uses_speed(self) -> bool:
+        return self.name in SPEED_LAWS
+
+    def laws(self) -> tuple:
+        """The :class:`.laws.Law` of each generator (the battery limit is the run's, not here)."""
+        return tuple(Law(self.name, ControllerParams(float(self.tau_s[i]), float(self.gain_k[i]),
+                                                     float(self.gain_l[i]), float(self.alpha[i])), self.gains)
+                     for i in range(self.net.size))
+
+    def describe(self) -> str:
+        """The law and its gains in one line (the NNI gains: the first generator's, and "per generator" if they differ)."""
+        text = self.laws()[0].describe()
+        if not self.uses_speed and any(np.ptp(v) > 0 for v in (self.tau_s, self.gain_k, self.gain_l, self.alpha)):
+            text += " (per generator)"
+        return text
 
     def angle_dev(self, delta_rad):
         """The controllers' input d_i for angles of shape (N,) or (N, R)."""
@@ -84,40 +108,56 @@ class NetworkLaw:
             dev = dev - self.net.coi(dev)
         return dev
 
+    def speed_dev(self, speed_rad_s):
+        """The speed laws' input: the speed deviation, against the centre of inertia's for reference coi."""
+        if self.reference == "coi":
+            return speed_rad_s - self.net.coi(speed_rad_s)
+        return speed_rad_s
+
 
 @dataclass
 class NetworkController:
-    """Sampled-data H3-hat at every generator for R runs at once: one call per PMU sample.
+    """The law at every generator for R runs at once: one call per PMU sample.
 
     ``limits_pu`` (shape (N, R) or broadcastable) are the battery limits b_i on
-    the system base. The update is :func:`law.sampled_step`, the SMIB's
-    SampledController's, on arrays (tests check both agree step for step).
+    the system base. The update is :class:`.laws.ArrayLaw`, the SMIB's
+    SampledLaw's formulas on arrays (tests check both agree step for step).
+    ``state``: the law's state to start from (None: the pre-fault steady state).
     """
 
     law: NetworkLaw
     period_s: float
     limits_pu: np.ndarray
-    x3: np.ndarray
+    state: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         net = self.law.net
         if not (math.isfinite(self.period_s) and self.period_s > 0):
             raise ValueError(f"sampling period must be finite and positive, got {self.period_s}")
-        self._k = net.pu_of_machine(self.law.gain_k)[:, None]
-        self._l = net.pu_of_machine(self.law.gain_l)[:, None]
-        self._decay_unsaturated = np.exp(-self.period_s / self.law.tau_s)[:, None]
-        self._decay_saturated = np.exp(-self.law.alpha * self.period_s / self.law.gain_k)[:, None]
+        self.limits_pu = np.asarray(self.limits_pu, dtype=float)
+        self._array = ArrayLaw(self.law.laws(), self.period_s, self.limits_pu, 2.0 * math.pi * net.f0_hz,
+                               net.mbase_mva / net.base_mva, self.state)
 
-    def step(self, delta_rad: np.ndarray, p_electrical_pu: np.ndarray):
-        """Answer one sample of angles and measured electrical powers, shape (N, R) each.
+    @property
+    def x3(self) -> np.ndarray:
+        return self._array.x3
 
-        Returns ``(P_ST, w, saturated)`` (system base) and advances x3.
+    def narrowed(self, keep) -> "NetworkController":
+        """The same controllers for the runs ``keep`` only, their states kept."""
+        return NetworkController(self.law, self.period_s, self.limits_pu[:, keep], self._array.state[..., keep])
+
+    def step(self, delta_rad: np.ndarray, p_electrical_pu: np.ndarray, speed_rad_s: np.ndarray | None = None):
+        """Answer one sample of angles, measured electrical powers and speeds, shape (N, R) each.
+
+        Returns ``(P_ST, demand, saturated)`` (system base) and advances the state. The speed is
+        needed by the speed laws only.
         """
         angle_dev = self.law.angle_dev(delta_rad)
         restoring = self.law.net.p_mech_pu[:, None] - p_electrical_pu
-        power, w, saturated, self.x3 = sampled_step(self.x3, angle_dev, restoring, self._k, self._l, self.limits_pu,
-                                                    self._decay_unsaturated, self._decay_saturated)
-        return power, w, saturated
+        speed = None if speed_rad_s is None else self.law.speed_dev(speed_rad_s)
+        if speed is None and self.law.uses_speed:
+            raise ValueError(f"law {self.law.name} needs the measured speeds")
+        return self._array.step(angle_dev, speed, restoring)
 
 
 @dataclass(frozen=True)
@@ -170,7 +210,7 @@ def simulate_network(net: Network, law: NetworkLaw, scenario, limits_pu_mbase, d
     n = int(round(duration_s * rate_hz))
     t = np.arange(n + 1) * period
     x = np.repeat(scenario.initial_state(net)[:, :, None], runs, axis=2)
-    controller = NetworkController(law, period, limits, np.zeros((net.size, runs)))
+    controller = NetworkController(law, period, limits)
     shape = (n + 1, net.size, runs)
     delta, speed, power, w, saturated = (np.full(shape, np.nan) for _ in range(5))
     active = np.arange(runs)
@@ -182,7 +222,7 @@ def simulate_network(net: Network, law: NetworkLaw, scenario, limits_pu_mbase, d
     for k in range(n + 1):
         measured = electrical_power(x[0], scenario.network(t[k], net)[1])
         delta[k][:, active], speed[k][:, active] = x
-        step = controller.step(x[0], measured)
+        step = controller.step(x[0], measured, x[1])
         for i in range(net.size):
             line.send(i, k, float(t[k]), step[0][i], float(t[k]))
         power[k][:, active], w[k][:, active], saturated[k][:, active] = np.array(line.powers), step[1], step[2]
@@ -190,7 +230,7 @@ def simulate_network(net: Network, law: NetworkLaw, scenario, limits_pu_mbase, d
             keep = ~lost
             active, x = active[keep], x[:, :, keep]
             line.narrow(keep)
-            controller = NetworkController(law, period, controller.limits_pu[:, keep], controller.x3[:, keep])
+            controller = controller.narrowed(keep)
             scenario = scenario.narrowed(keep)
             if active.size == 0:
                 break

@@ -1,4 +1,4 @@
-"""``nni-simulate --case ...``: the saturated NNI law at every generator of a network, offline.
+"""``nni-simulate --case ...``: a battery law (the saturated NNI law by default) at every generator of a network, offline.
 
 Runs one disturbance of a shipped test system (``kundur_two_area``, ``ieee39``)
 or of a MATPOWER case file with its machine data, for each battery limit b
@@ -28,12 +28,11 @@ from nni_battery_controller.network_common import (
 )
 from nni_battery_controller.network_sim import (
     ANGLE_REFERENCES,
-    NetworkLaw,
     assess_network,
     critical_clearing_times,
     simulate_network,
 )
-from nni_battery_controller.options import add_link_options, link_of
+from nni_battery_controller.options import add_link_options, add_network_law_options, link_of, network_laws_of
 from nni_battery_controller.study_common import (
     DEFAULT_DELAY_MAX_S,
     delay_margin_row,
@@ -52,6 +51,7 @@ from nni_msgs_adapter.ros.cli_support import (
     writable_output,
     write_json,
 )
+from nni_msgs_adapter.ros.defaults import controller_defaults
 from nni_plant_sim.cases import CASES, load_network
 
 
@@ -67,12 +67,7 @@ def build_parser() -> OneLineParser:
                         help="battery limits, pu of each machine's rating ('inf' allowed); default 0 0.1 0.3 inf")
     parser.add_argument("--reference", choices=ANGLE_REFERENCES, nargs="+", default=["pmu"],
                         help="controllers' angle reference: pmu (own angle vs nominal frequency) and/or coi")
-    parser.add_argument("--tau", type=positive_float, nargs="+", default=[0.1], help="tau, s: one or per generator")
-    parser.add_argument("--K", dest="gain_k", type=positive_float, nargs="+", default=[1.0],
-                        help="K, pu of the rating per rad: one or per generator")
-    parser.add_argument("--L", dest="gain_l", type=positive_float, nargs="+", default=[1.1],
-                        help="L, pu of the rating per rad: one or per generator (K < L each)")
-    parser.add_argument("--alpha", type=positive_float, nargs="+", default=[1.0], help="alpha: one or per generator")
+    add_network_law_options(parser)
     parser.add_argument("--controller-rate", type=float_within(10.0, 1000.0, "Hz"), default=50.0,
                         help="PMU / controller rate, Hz (default 50)")
     parser.add_argument("--duration", type=positive_float, default=10.0, help="simulated seconds (default 10)")
@@ -117,15 +112,17 @@ def main(argv=None) -> int:
         started = time.perf_counter()
         net = load_network(args.case, args.machines, args.f0)
         scenario, description, factory = make_scenario(net, args)
-        laws = {ref: NetworkLaw.uniform(net, args.tau, args.gain_k, args.gain_l, args.alpha, ref)
-                for ref in args.reference}
+        name = args.law or controller_defaults()["law"]
+        laws = {ref: network_laws_of(args, net, ref, (name,))[name] for ref in args.reference}
         link = link_of(args)
-        title = f"{args.case}: {description}; controller {args.controller_rate:g} Hz"
+        law_text = laws[args.reference[0]].describe()
+        title = f"{args.case}: {description}; controller {args.controller_rate:g} Hz, law {law_text}"
         result = {"case": args.case, "generators": list(net.names), "mbase_mva": net.mbase_mva.tolist(),
-                  "scenario": args.scenario, "description": description, "rate_hz": args.controller_rate}
+                  "scenario": args.scenario, "description": description, "rate_hz": args.controller_rate,
+                  "law": name, "law_gains": laws[args.reference[0]].laws()[0].gain_values()}
         result.update(link_json(link, delay_searched=args.delay_margin))
         if args.delay_margin:
-            print(f"{args.case}: delay margin, {description}; controller {args.controller_rate:g} Hz; the longest "
+            print(f"{args.case}: delay margin, {description}; controller {args.controller_rate:g} Hz, law {law_text}; the longest "
                   f"fixed delay from a measurement to its command taking effect (every generator) that keeps every "
                   f"pair of generators within 180 degrees (in synchronism) over {args.duration:g} s")
             print("\n".join(delay_search_lines(args.delay_step, args.delay_max, link, f"  {'reference':>9} ")))
@@ -145,7 +142,7 @@ def main(argv=None) -> int:
         elif args.cct:
             print(f"{args.case}: critical clearing time of the {description.split(', cleared')[0]}"
                   f"{', with the trip' if args.trip_line else ''}; {args.duration:g} s runs, controller "
-                  f"{args.controller_rate:g} Hz")
+                  f"{args.controller_rate:g} Hz, law {law_text}")
             print(f"  {'b (pu)':>7} {'reference':>9} {'CCT (s)':>9}")
             result["cct"] = []
             for ref, law in laws.items():

@@ -22,6 +22,8 @@ from pathlib import Path
 import yaml
 
 from nni_battery_controller.law import ControllerParams
+from nni_battery_controller.laws import GAIN_PARAMETERS, GAINS, LAW_NAMES, Law, law_from_parameters
+from nni_battery_controller.network_sim import NetworkLaw
 from nni_msgs_adapter.ros.cli_support import CliError, finite_float, float_within, positive_float
 from nni_msgs_adapter.ros.defaults import controller_defaults, plant_defaults
 from nni_plant_sim.link import Link
@@ -49,6 +51,7 @@ class Option:
     kind: object  # argparse type
     text: str
     scenario: str | None = None  # the scenario it belongs to (None: any)
+    law: str | None = None  # the speed law whose gain it is (None: a plant value or an NNI gain)
 
 
 OPTIONS = (
@@ -69,7 +72,20 @@ OPTIONS = (
     Option("--K", "controller", "gain_k", finite_float, "gain K, pu/rad"),
     Option("--L", "controller", "gain_l", finite_float, "gain L, pu/rad (K < L)"),
     Option("--alpha", "controller", "alpha", finite_float, "saturated-mode decay factor alpha"),
+    Option("--droop-k-f", "controller", "droop_k_f", finite_float, "droop: K_f, pu power per pu frequency", law="droop"),
+    Option("--vsm-h-v", "controller", "vsm_h_v_s", finite_float, "vsm: virtual inertia constant H_v, s", law="vsm"),
+    Option("--vsm-d-v", "controller", "vsm_d_v", finite_float, "vsm: damping D_v, pu power per pu frequency",
+           law="vsm"),
+    Option("--vsm-t-f", "controller", "vsm_t_f_s", finite_float, "vsm: the derivative's filter T_f, s", law="vsm"),
+    Option("--pss-k-s", "controller", "pss_k_s", finite_float, "pss: gain K_s, pu power per pu frequency", law="pss"),
+    Option("--pss-t-w", "controller", "pss_t_w_s", finite_float, "pss: washout T_w, s", law="pss"),
+    Option("--pss-t1", "controller", "pss_t1_s", finite_float, "pss: first lead T_1, s", law="pss"),
+    Option("--pss-t2", "controller", "pss_t2_s", finite_float, "pss: first lag T_2, s", law="pss"),
+    Option("--pss-t3", "controller", "pss_t3_s", finite_float, "pss: second lead T_3, s", law="pss"),
+    Option("--pss-t4", "controller", "pss_t4_s", finite_float, "pss: second lag T_4, s", law="pss"),
 )
+#: The NNI laws' gain options (the others belong to one speed law each).
+NNI_GAINS = ("tau_s", "gain_k", "gain_l", "alpha")
 #: The controller's model of the plant: node parameters of the controller that must equal the plant's here.
 CONTROLLER_MODEL_KEYS = ("p_mech_pu", "p_max_pu", "inertia_h_s", "f0_hz")
 
@@ -99,13 +115,90 @@ def add_model_options(parser: argparse.ArgumentParser) -> None:
                                f"the rotor and cleared; mechanical_step: P_M steps for a while; "
                                f"transfer_limit_fault: P_max drops until the fault clears)")
     groups = {None: parser.add_argument_group("plant (per unit)"),
-              "controller": parser.add_argument_group("controller gains")}
+              "controller": parser.add_argument_group("controller: the law and its gains (pu of the machine's "
+                                                      "rating); a speed law's gain applies to that law only")}
+    add_law_option(groups["controller"])
+    add_law_gain_options(groups["controller"])
     for option in OPTIONS:
+        if option.law:
+            continue
         group = scenario if option.scenario else groups["controller" if option.node == "controller" else None]
         where = f"{option.scenario}: " if option.scenario else ""
         group.add_argument(option.flag, dest=option.name, type=option.kind, default=None,
                            metavar=option.flag.lstrip("-").upper().replace("-", "_"),
                            help=f"{where}{option.text} (default: {_shown(defaults[option.node][option.name])})")
+
+
+def add_law_option(group) -> None:
+    """--law (default: the controller node's, None on the parser)."""
+    group.add_argument(
+        "--law", choices=LAW_NAMES, default=None,
+        help=f"the battery law (default: {controller_defaults()['law']}): nni (the paper's saturated H3-hat), "
+             f"nni-unsaturated (its H3, output clipped at b), droop (fast frequency response), vsm (virtual inertia "
+             f"and damping), pss (PSS1A on speed); docs/laws.md")
+
+
+#: The speed laws' gain options (``nni-simulate --case`` and the network demo add these beside their own).
+LAW_GAIN_OPTIONS = tuple(o for o in OPTIONS if o.law)
+
+
+def add_law_gain_options(group) -> None:
+    """The speed laws' gain options, defaults (None on the parser) from the controller node's YAML."""
+    defaults = controller_defaults()
+    for option in LAW_GAIN_OPTIONS:
+        group.add_argument(option.flag, dest=option.name, type=option.kind, default=None,
+                           metavar=option.flag.lstrip("-").upper().replace("-", "_"),
+                           help=f"{option.text} (default: {_shown(defaults[option.name])})")
+
+
+def speed_law_gains(args, laws) -> dict:
+    """``{law: its gains}`` for the speed laws among ``laws`` from the options given and the YAML; CliError
+    for an option of a law not among them or a bad value."""
+    values = controller_defaults()
+    for option in LAW_GAIN_OPTIONS:
+        value = getattr(args, option.name, None)
+        if value is None:
+            continue
+        if option.law not in laws:
+            raise CliError(f"{option.flag} applies to --law {option.law}, not {', '.join(laws)}")
+        values[option.name] = value
+    try:
+        return {name: law_from_parameters(name, values, ControllerParams()).gains for name in laws if name in GAINS}
+    except ValueError as error:
+        raise CliError(str(error)) from None
+
+
+#: The network commands' NNI gain options: (dest, flag, controller parameter); one value or one per generator.
+NETWORK_NNI_GAINS = (("tau", "--tau", "tau_s"), ("gain_k", "--K", "gain_k"), ("gain_l", "--L", "gain_l"),
+                     ("alpha", "--alpha", "alpha"))
+
+
+def add_network_law_options(parser, laws_option: bool = False) -> None:
+    """--law, the NNI gains (one value or one per generator) and the speed laws' gains of the network commands."""
+    group = parser.add_argument_group("controller: the law and its gains (pu of each machine's rating; the NNI gains "
+                                      "one value or one per generator; default: the controller node's)")
+    add_law_option(group)
+    for dest, flag, text in zip((d for d, _, _ in NETWORK_NNI_GAINS), (f for _, f, _ in NETWORK_NNI_GAINS),
+                                ("tau, s", "K, pu/rad", "L, pu/rad (K < L each)", "alpha")):
+        group.add_argument(flag, dest=dest, type=positive_float, nargs="+", default=None, help=f"nni laws: {text}")
+    add_law_gain_options(group)
+
+
+def network_laws_of(args, net, reference: str, names) -> dict:
+    """``{law name: NetworkLaw}`` for the laws ``names`` at every generator of ``net``, gains from the options
+    given and the controller node's YAML; CliError (one line) for a gain of a law not among them or a bad value."""
+    defaults = controller_defaults()
+    if not any(name in ("nni", "nni-unsaturated") for name in names):
+        for dest, flag, _ in NETWORK_NNI_GAINS:
+            if getattr(args, dest) is not None:
+                raise CliError(f"{flag} is a gain of the NNI laws, not of --law {', '.join(names)}")
+    speed = speed_law_gains(args, names)
+    nni = [defaults[key] if getattr(args, dest) is None else getattr(args, dest) for dest, _, key in NETWORK_NNI_GAINS]
+    try:
+        return {name: NetworkLaw.uniform(net, *nni, reference=reference, name=name, gains=speed.get(name))
+                for name in names}
+    except ValueError as error:
+        raise CliError(str(error)) from None
 
 
 @dataclass(frozen=True)
@@ -125,14 +218,29 @@ class ModelValues:
         return SmibParams(p["inertia_h_s"], p["damping_pu"], p["p_mech_pu"], p["p_max_pu"], p["f0_hz"])
 
     def controller_params(self, b: float) -> ControllerParams:
-        """The controller's design for battery limit ``b`` (ValueError naming a bad value)."""
+        """The NNI gains and battery limit ``b`` (ValueError naming a bad value)."""
         c = self.controller
         return ControllerParams(c["tau_s"], c["gain_k"], c["gain_l"], c["alpha"], b)
+
+    @property
+    def law_name(self) -> str:
+        return self.controller["law"]
+
+    def law(self, b: float, name: str | None = None) -> Law:
+        """The law (``name``, default the chosen one) with its gains and battery limit ``b``."""
+        return law_from_parameters(name or self.law_name, self.controller, self.controller_params(b))
+
+    def law_gain_values(self, name: str | None = None) -> dict:
+        """The chosen law's gains by node parameter name (what a run says ran)."""
+        name = name or self.law_name
+        keys = GAIN_PARAMETERS[name] if name in GAIN_PARAMETERS else NNI_GAINS
+        return {k: self.controller[k] for k in keys}
 
     def validate(self) -> None:
         """ValueError naming the first bad value of the plant, the gains or the scenario."""
         self.smib()
         self.controller_params(math.inf)
+        self.law(math.inf)
         self.scenario()
 
     def scenario(self):
@@ -150,8 +258,8 @@ class ModelValues:
         return {k: self.plant[k] for k in keys}
 
     def controller_node_parameters(self) -> dict:
-        """What the controller node must be given: its gains and its model of the plant (the plant's values)."""
-        return {**{o.name: self.controller[o.name] for o in OPTIONS if o.node == "controller"},
+        """What the controller node must be given: its law, gains and model of the plant (the plant's values)."""
+        return {"law": self.law_name, **{o.name: self.controller[o.name] for o in OPTIONS if o.node == "controller"},
                 **{k: self.plant[k] for k in CONTROLLER_MODEL_KEYS}}
 
     def header(self) -> str:
@@ -166,9 +274,13 @@ class ModelValues:
             what = f"P_M = {p['step_p_mech_pu']:g} pu {length}"
         else:
             what = f"P_max = {p['fault_p_max_pu']:g} pu until cleared at {p['clearing_time_s']:g} s"
+        if self.law_name in GAIN_PARAMETERS:
+            gains = f"law {self.law_name}: " + ", ".join(f"{k} {c[k]:g}" for k in GAIN_PARAMETERS[self.law_name])
+        else:
+            gains = (f"law {self.law_name}: tau {c['tau_s']:g} s, K {c['gain_k']:g}, L {c['gain_l']:g}, "
+                     f"alpha {c['alpha']:g}")
         return (f"{name} ({what}); H {p['inertia_h_s']:g} s, D {p['damping_pu']:g}, P_M {p['p_mech_pu']:g}, "
-                f"P_max {p['p_max_pu']:g}, f0 {p['f0_hz']:g} Hz; tau {c['tau_s']:g} s, K {c['gain_k']:g}, "
-                f"L {c['gain_l']:g}, alpha {c['alpha']:g}")
+                f"P_max {p['p_max_pu']:g}, f0 {p['f0_hz']:g} Hz; {gains}")
 
 
 def _params_file_values(path: Path, prog: str) -> dict:
@@ -183,7 +295,7 @@ def _params_file_values(path: Path, prog: str) -> dict:
     known = {"plant": plant_defaults(), "controller": controller_defaults()}
     settable = {"plant": {"scenario", *(n for f in SCENARIO_FIELDS.values() for n in f),
                           *(o.name for o in OPTIONS if o.node == "plant")},
-                "controller": {*(o.name for o in OPTIONS if o.node == "controller"), *CONTROLLER_MODEL_KEYS}}
+                "controller": {"law", *(o.name for o in OPTIONS if o.node == "controller"), *CONTROLLER_MODEL_KEYS}}
     found = {"plant": {}, "controller": {}}
     for key, section in content.items():
         node = str(key).rstrip("/").rsplit("/", 1)[-1]
@@ -197,7 +309,7 @@ def _params_file_values(path: Path, prog: str) -> dict:
             if name not in settable[node]:
                 raise CliError(f"--params-file {path}: {node}.{name} does not apply to {prog} "
                                f"(it takes the scenario, plant model and gains; see --help for the rest)")
-            expected = str if name == "scenario" else float
+            expected = str if name in ("scenario", "law") else float
             if isinstance(value, bool) or not isinstance(value, (int, float) if expected is float else str):
                 raise CliError(f"--params-file {path}: {node}.{name} must be a "
                                f"{'string' if expected is str else 'number'}, got {value!r}")
@@ -227,12 +339,21 @@ def resolve_model(args: argparse.Namespace, prog: str) -> ModelValues:
         plant["scenario"] = args.scenario
     if plant["scenario"] not in SCENARIOS:
         raise CliError(f"scenario must be one of {', '.join(SCENARIOS)}, got {plant['scenario']!r}")
+    if getattr(args, "law", None) is not None:
+        controller["law"] = args.law
+    if controller["law"] not in LAW_NAMES:
+        raise CliError(f"law must be one of {', '.join(LAW_NAMES)}, got {controller['law']!r}")
+    laws = getattr(args, "laws_compared", None) or (controller["law"],)
     for option in OPTIONS:
         value = getattr(args, option.name)
         if value is None:
             continue
         if option.scenario and option.scenario != plant["scenario"]:
             raise CliError(f"{option.flag} applies to --scenario {option.scenario}, not {plant['scenario']}")
+        if option.law and option.law not in laws:
+            raise CliError(f"{option.flag} applies to --law {option.law}, not {', '.join(laws)}")
+        if option.name in NNI_GAINS and not any(name.startswith("nni") for name in laws):
+            raise CliError(f"{option.flag} is a gain of the NNI laws, not of --law {', '.join(laws)}")
         (plant if option.node == "plant" else controller)[option.name] = value
     for name in CONTROLLER_MODEL_KEYS:
         controller[name] = plant[name]

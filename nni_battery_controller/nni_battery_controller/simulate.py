@@ -27,7 +27,7 @@ and :class:`Trajectory` start without it (half a second of CPU each).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -41,11 +41,11 @@ from nni_battery_controller.closed_loop import (
 )
 from nni_battery_controller.law import (
     ControllerParams,
-    SampledController,
     closed_loop_lyapunov,
     saturation_input,
     x3_rate,
 )
+from nni_battery_controller.laws import Law
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.link import NO_LINK, DelayLine, Link, integrate_through
 from nni_plant_sim.model import SmibParams
@@ -88,6 +88,7 @@ class Trajectory:
     w: np.ndarray
     saturated: np.ndarray
     switch_times_s: np.ndarray
+    law: str = "nni"
 
     @property
     def angle_dev_rad(self) -> np.ndarray:
@@ -96,7 +97,9 @@ class Trajectory:
 
     @property
     def w_hat(self) -> np.ndarray:
-        """Closed-loop Lyapunov candidate W_hat along the trajectory, pu*rad."""
+        """Closed-loop Lyapunov candidate W_hat along the trajectory, pu*rad (the nni law's; NaN for the others)."""
+        if self.law != "nni":
+            return np.full(self.t_s.shape, np.nan)
         return closed_loop_lyapunov(
             self.angle_dev_rad, self.speed_rad_s, self.x3, self.plant, self.ctrl, saturated=self.saturated
         )
@@ -301,8 +304,13 @@ def simulate_sampled(
     rate_hz: float,
     max_step_s: float = 1e-3,
     link: Link = NO_LINK,
+    law: Law | None = None,
 ) -> Trajectory:
     """Sampled-data closed loop at ``rate_hz``: the controller node's law, offline.
+
+    ``law``: the battery law (:mod:`.laws`; its battery limit is ``ctrl``'s);
+    None is the saturated NNI law of ``ctrl``. ``x3`` of a speed law's
+    trajectory is its filter's first state.
 
     At each sample t_k = k/rate_hz the controller reads d(t_k), outputs P_ST held
     over [t_k, t_k+1) and advances x3 exactly; the plant is integrated over the
@@ -319,7 +327,8 @@ def simulate_sampled(
     n = int(round(duration_s * rate_hz))
     t = np.arange(n + 1) * period
     x = scenario.initial_state(plant)
-    law = SampledController(plant, ctrl, period)
+    spec = Law("nni", ctrl) if law is None else replace(law, ctrl=replace(law.ctrl, battery_limit_pu=ctrl.battery_limit_pu))
+    law = spec.sampled(plant, period)
     states = np.empty((n + 1, 3))
     outputs = np.empty((n + 1, 3))
     line = DelayLine(link, [0.0])
@@ -335,15 +344,15 @@ def simulate_sampled(
             outputs[k:] = (0.0, np.nan, 0.0)
             break
         x3 = law.x3
-        power, w, saturated = law.step(angle_dev)
+        power, w, saturated = law.step(angle_dev, float(x[1]))
         line.send(0, k, float(t[k]), power, float(t[k]))
         states[k] = (x[0], x[1], x3)
         outputs[k] = (line.powers[0], w, saturated)
         if k < n:
             x = integrate_through(line, piece, float(t[k]), float(t[k + 1]), x)
     return Trajectory(
-        plant, ctrl, t, states[:, 0], states[:, 1], states[:, 2],
-        outputs[:, 0], outputs[:, 1], outputs[:, 2].astype(bool), np.empty(0),
+        plant, spec.ctrl, t, states[:, 0], states[:, 1], states[:, 2],
+        outputs[:, 0], outputs[:, 1], outputs[:, 2].astype(bool), np.empty(0), spec.name,
     )
 
 

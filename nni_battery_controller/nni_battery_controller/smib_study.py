@@ -190,11 +190,16 @@ def plant_step_s() -> float:
     return plant_defaults()["integration_step_s"]
 
 
-def simulate(plant, ctrl, scenario, duration_s, rate_hz, link=NO_LINK):
-    """One run of the continuous law or of the sampled law at ``rate_hz`` (through ``link``)."""
+def simulate(plant, law, scenario, duration_s, rate_hz, link=NO_LINK):
+    """One run of ``law`` (a :class:`.laws.Law`): the continuous nni law, or the sampled law at ``rate_hz`` (through ``link``)."""
     if rate_hz is None:
-        return simulate_continuous(plant, ctrl, scenario, duration_s, OUTPUT_STEP_S)
-    return simulate_sampled(plant, ctrl, scenario, duration_s, rate_hz, plant_step_s(), link)
+        return simulate_continuous(plant, law.ctrl, scenario, duration_s, OUTPUT_STEP_S)
+    return simulate_sampled(plant, law.ctrl, scenario, duration_s, rate_hz, plant_step_s(), link, law)
+
+
+def law_json(law) -> dict:
+    """``{"law": name, "law_gains": {...}}``: what a JSON says ran."""
+    return {"law": law.name, "law_gains": law.gain_values()}
 
 
 def format_table(outcomes) -> str:
@@ -277,11 +282,13 @@ def run_roa(args, model, plant: SmibParams) -> int:
 def run_cct(args, model, plant: SmibParams) -> int:
     """``--cct``: critical clearing time of the transfer-limit fault per b; table, and JSON with cct_s."""
     ctrls = [model.controller_params(b) for b in args.b]
+    laws = [model.law(b) for b in args.b]
     runs = 2 * math.ceil(math.log2(args.duration / CCT_TOLERANCE_S)) + 2
     check_work(plant, ctrls, args.duration, args.controller_rate, runs_per_b=runs)
     fault_p_max = model.plant["fault_p_max_pu"]
     print(f"Critical clearing time, transfer_limit_fault with P_max = {fault_p_max:g} pu during the fault, "
-          f"controller {controller_text(args.controller_rate)}: the longest clearing time that keeps the rotor "
+          f"controller {controller_text(args.controller_rate)}, law {laws[0].describe()}: the longest clearing time "
+          f"that keeps the rotor "
           f"angle within +-180 degrees over {args.duration:g} s")
     print(f"bisection to {CCT_TOLERANCE_S * 1e3:g} ms: bracket [0, {CCT_TOLERANCE_S:g}] s, upper end doubled until "
           f"a run slips (up to {args.duration:g} s), then halved")
@@ -289,13 +296,8 @@ def run_cct(args, model, plant: SmibParams) -> int:
         print(link_of(args).describe())
     print(f"{'b (pu)':>7} {'CCT (s)':>9} {'slips at (s)':>13} {'runs':>5}")
     results = []
-    for ctrl in ctrls:
-        def in_sync(clearing_s, ctrl=ctrl):
-            scenario = TransferLimitFault(fault_p_max, clearing_s)
-            return assess(simulate(plant, ctrl, scenario, args.duration, args.controller_rate,
-                                   link_of(args))).in_synchronism
-
-        result = critical_clearing_time(in_sync, ctrl.battery_limit_pu, args.duration)
+    for law in laws:
+        result = smib_cct(plant, law, fault_p_max, args.duration, args.controller_rate, link_of(args))
         results.append(result)
         slips = "-" if result.slips_s is None else f"{result.slips_s:.4f}"
         note = "" if result.slips_s is not None else f"  (no slip for any clearing time up to {args.duration:g} s)"
@@ -306,11 +308,21 @@ def run_cct(args, model, plant: SmibParams) -> int:
         print(f"equal-area closed form for b = 0 (bolted fault, D = 0): {closed_form:.4f} s")
     if args.json:
         write_json(args.json, {"cct": [r.to_json() for r in results], "tolerance_s": CCT_TOLERANCE_S,
+                               **law_json(laws[0]),
                                "duration_s": args.duration, "controller": controller_text(args.controller_rate),
                                "scenario": {"name": "transfer_limit_fault", "fault_p_max_pu": fault_p_max},
                                "equal_area_cct_s": closed_form, **link_json(link_of(args))})
         print(f"wrote {args.json}")
     return 0
+
+
+def smib_cct(plant, law, fault_p_max: float, duration_s: float, rate_hz, link=NO_LINK):
+    """The critical clearing time of the transfer-limit fault for ``law`` (:func:`.margins.critical_clearing_time`)."""
+    def in_sync(clearing_s):
+        scenario = TransferLimitFault(fault_p_max, clearing_s)
+        return assess(simulate(plant, law, scenario, duration_s, rate_hz, link)).in_synchronism
+
+    return critical_clearing_time(in_sync, law.limit_pu, duration_s)
 
 
 def permanent_step_note(model, plant: SmibParams) -> str:
@@ -334,8 +346,8 @@ def run_time_domain(args, model, plant: SmibParams) -> int:
     scenario = model.scenario()
     ctrls = [model.controller_params(b) for b in args.b]
     check_work(plant, ctrls, args.duration, args.controller_rate)
-    trajectories = [simulate(plant, ctrl, scenario, args.duration, args.controller_rate, link_of(args))
-                    for ctrl in ctrls]
+    trajectories = [simulate(plant, model.law(b), scenario, args.duration, args.controller_rate, link_of(args))
+                    for b in args.b]
     outcomes = [assess(traj, scenario=scenario).to_json() for traj in trajectories]
     print(f"SMIB, {model.header()}")
     print(f"controller {controller_text(args.controller_rate)}, {args.duration:g} s "
@@ -348,7 +360,7 @@ def run_time_domain(args, model, plant: SmibParams) -> int:
         print(permanent_step_note(model, plant))
     if args.json:
         write_json(args.json, {"scenario": model.scenario_values(), "controller": controller_text(args.controller_rate),
-                               "scenarios": outcomes, **link_json(link_of(args))})
+                               **law_json(model.law(math.inf)), "scenarios": outcomes, **link_json(link_of(args))})
         print(f"wrote {args.json}")
     if args.plot:
         plot_runs(trajectories, outcomes, args.plot, model.scenario_values(),
@@ -369,8 +381,10 @@ def run_delay_margin(args, model, plant: SmibParams) -> int:
           f"effect that keeps the rotor angle within +-180 degrees (in synchronism) over {args.duration:g} s")
     print("\n".join(delay_search_lines(scan_s, args.delay_max, link)))
 
+    laws = [model.law(b) for b in args.b]
+
     def in_sync(delay_s, indices):
-        return [assess(simulate(plant, ctrls[i], scenario, args.duration, rate, link.with_delay(delay_s)))
+        return [assess(simulate(plant, laws[i], scenario, args.duration, rate, link.with_delay(delay_s)))
                 .in_synchronism for i in indices]
 
     results = delay_margins(in_sync, [ctrl.battery_limit_pu for ctrl in ctrls], scan_s, args.delay_max)
@@ -380,6 +394,7 @@ def run_delay_margin(args, model, plant: SmibParams) -> int:
         write_json(args.json, {"delay_margin": [r.to_json() for r in results], "tolerance_s": DELAY_MARGIN_TOLERANCE_S,
                                "scan_step_s": scan_s, "searched_up_to_s": args.delay_max, "duration_s": args.duration,
                                "controller": controller_text(rate), "scenario": model.scenario_values(),
+                               **law_json(laws[0]),
                                "criterion": "in synchronism: the rotor angle never passed +-180 degrees",
                                **link_json(link, delay_searched=True)})
         print(f"wrote {args.json}")
@@ -388,7 +403,7 @@ def run_delay_margin(args, model, plant: SmibParams) -> int:
 
 def resolve_link_options(args) -> None:
     """The controller rate (--delay-margin: the plant node's by default) and the link options where they apply."""
-    continuous_given = args.controller_rate == CONTINUOUS
+    continuous_given = args.continuous_given = args.controller_rate == CONTINUOUS
     if args.delay_margin:
         refuse_beside_delay_margin(args, ("roa", "cct", "plot", "link_delay"))
         if continuous_given:
@@ -440,6 +455,15 @@ def main(argv=None) -> int:
                 args.scenario = "transfer_limit_fault"
             model = resolve_model(args, parser.prog)
             plant = model.smib()
+            model.validate()
+            if model.law_name != "nni":
+                if args.roa or args.continuous_given:
+                    raise CliError(f"--law {model.law_name} runs sampled at the PMU rate: "
+                                   + ("--roa sweeps the continuous nni law; --compare-laws sweeps every law's "
+                                      "region of attraction" if args.roa else "it takes no --controller-rate "
+                                                                               "continuous"))
+                if args.controller_rate is None:  # the sampled law at the plant node's PMU rate
+                    args.controller_rate = plant_defaults()["pmu_rate_hz"]
             if args.roa:
                 status = run_roa(args, model, plant)
             elif args.delay_margin:
