@@ -1,0 +1,144 @@
+"""The five battery laws: each sampled core against a step computed by hand, scalar against array, ZOH against scipy."""
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import scipy.linalg
+import scipy.signal
+
+from nni_battery_controller.law import ControllerParams
+from nni_battery_controller.laws import LAW_NAMES, ArrayLaw, DroopGains, Law, PssGains, VsmGains, expm, zero_order_hold
+from nni_plant_sim.model import SmibParams
+
+PLANT = SmibParams()
+W0 = PLANT.omega0_rad_s
+T = 0.02
+
+
+def law(name, b=0.3, gains=None):
+    return Law(name, ControllerParams(battery_limit_pu=b), gains)
+
+
+def test_droop_is_minus_k_f_times_the_frequency_deviation_in_pu_clipped_at_b():
+    sampled = law("droop", gains=DroopGains(k_f=20.0)).sampled(PLANT, T)
+    # 0.5 rad/s is 0.5/(2 pi 50) pu: -20 * 0.0015915... = -0.03183 pu, inside b.
+    power, demand, saturated = sampled.step(0.1, 0.5)
+    assert demand == pytest.approx(-20.0 * 0.5 / (2 * math.pi * 50.0), rel=1e-15)
+    assert (power, saturated) == (demand, False)
+    power, demand, saturated = sampled.step(0.1, -10.0)  # demand 0.6366 pu: clipped at +b
+    assert (power, saturated) == (0.3, True)
+
+
+def test_vsm_first_step_is_the_filtered_derivative_of_a_step_plus_damping():
+    gains = VsmGains(h_v_s=2.0, d_v=10.0, t_f_s=0.1)
+    sampled = law("vsm", b=math.inf, gains=gains).sampled(PLANT, T)
+    u = 1.0 / W0  # 1 rad/s in pu
+    # z = 0: derivative (u - z)/T_f = u/T_f; v = -(2 H_v u / T_f + D_v u).
+    power, _, _ = sampled.step(0.0, 1.0)
+    assert power == pytest.approx(-(4.0 / 0.1 + 10.0) * u, rel=1e-14)
+    # z advanced exactly: z1 = (1 - e^(-T/T_f)) u; the next derivative (u - z1)/T_f.
+    z1 = (1.0 - math.exp(-T / 0.1)) * u
+    power, _, _ = sampled.step(0.0, 1.0)
+    assert power == pytest.approx(-(4.0 * (u - z1) / 0.1 + 10.0 * u), rel=1e-13)
+
+
+def test_pss_with_equal_leads_and_lags_is_a_gain_times_a_washout():
+    gains = PssGains(k_s=50.0, t_w_s=2.0, t1_s=0.1, t2_s=0.1, t3_s=0.3, t4_s=0.3)
+    sampled = law("pss", b=math.inf, gains=gains).sampled(PLANT, T)
+    u = 1.0 / W0
+    first, _, _ = sampled.step(0.0, 1.0)
+    second, _, _ = sampled.step(0.0, 1.0)
+    # Washout s T_w/(1 + s T_w) of a held step: output u e^(-t/T_w) at the samples.
+    assert first == pytest.approx(-50.0 * u, rel=1e-12)
+    assert second == pytest.approx(-50.0 * u * math.exp(-T / 2.0), rel=1e-12)
+
+
+def test_pss_transfer_function_is_pss1a():
+    gains = PssGains(k_s=30.0, t_w_s=5.0, t1_s=0.4, t2_s=0.05, t3_s=0.2, t4_s=0.03)
+    a, b, c, d = gains.state_space()
+    for s in (0.3j, 2j, 15j):
+        model = c @ np.linalg.solve(s * np.eye(3) - a, b) + d
+        pss1a = -30.0 * (5.0 * s / (1 + 5.0 * s)) * (1 + 0.4 * s) / (1 + 0.05 * s) * (1 + 0.2 * s) / (1 + 0.03 * s)
+        assert abs(model - pss1a) <= 1e-12 * abs(pss1a)
+
+
+@pytest.mark.parametrize("gains", [VsmGains(), PssGains(t1_s=0.3, t2_s=0.05, t3_s=0.2, t4_s=0.02)])
+def test_zero_order_hold_and_expm_agree_with_scipy(gains):
+    a, b, c, d = gains.state_space()
+    ad, bd = zero_order_hold(a, b, T)
+    reference = scipy.signal.cont2discrete((a, b[:, None], c[None, :], [[d]]), T, "zoh")
+    np.testing.assert_allclose(ad, reference[0], rtol=0, atol=1e-13)
+    np.testing.assert_allclose(bd, reference[1][:, 0], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(expm(a * 7.3), scipy.linalg.expm(a * 7.3), rtol=1e-12, atol=1e-15)
+
+
+def test_nni_unsaturated_keeps_the_h3_state_and_clips_only_the_output():
+    saturated_law = law("nni", b=0.05).sampled(PLANT, T)
+    unsaturated = law("nni-unsaturated", b=0.05).sampled(PLANT, T)
+    unlimited = law("nni", b=math.inf).sampled(PLANT, T)
+    for d in (0.9, 0.85, 0.8):
+        p_sat, _, _ = saturated_law.step(d, 0.0)
+        p_un, w_un, sat_un = unsaturated.step(d, 0.0)
+        p_inf, w_inf, _ = unlimited.step(d, 0.0)
+        assert w_un == w_inf and unsaturated.x3 == unlimited.x3  # H3's state: the battery's limit unknown to it
+        assert p_un == max(-0.05, min(0.05, w_inf)) and sat_un
+    assert saturated_law.x3 != unsaturated.x3  # H3-hat decayed x3 in saturation
+
+
+@pytest.mark.parametrize("name", LAW_NAMES)
+def test_the_array_law_is_the_scalar_law_step_for_step(name):
+    rng = np.random.default_rng(3)
+    limits = np.array([[0.05, 0.3, math.inf]])
+    scalars = [law(name, b=float(b)).sampled(PLANT, T) for b in limits[0]]
+    array = ArrayLaw([law(name)], T, limits, W0)
+    for _ in range(40):
+        d, speed = rng.normal(0, 0.3), rng.normal(0, 2.0)
+        g = PLANT.p_max_pu * (math.sin(PLANT.delta_bar_rad) - math.sin(d + PLANT.delta_bar_rad))
+        power, demand, saturated = array.step(np.full((1, 3), d), np.full((1, 3), speed), np.full((1, 3), g))
+        for r, scalar in enumerate(scalars):
+            expected = scalar.step(d, speed, g)
+            assert power[0, r] == pytest.approx(expected[0], rel=1e-12, abs=1e-15)
+            assert demand[0, r] == pytest.approx(expected[1], rel=1e-12, abs=1e-15)
+            assert bool(saturated[0, r]) == expected[2]
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda: Law("bogus"), "unknown law"),
+    (lambda: DroopGains(k_f=-1.0), "k_f must be finite and positive"),
+    (lambda: VsmGains(t_f_s=math.nan), "t_f_s must be finite and positive"),
+    (lambda: PssGains(t1_s=-0.1), "t1_s must be finite and non-negative"),
+    (lambda: Law("nni", gains=DroopGains()), "takes the NNI gains"),
+])
+def test_bad_laws_and_gains_are_refused_with_their_reason(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--law", "bogus"], "invalid choice: 'bogus'"),
+    (["--law", "droop", "--droop-k-f", "-1"], "droop_k_f must be finite and positive"),
+    (["--law", "vsm", "--vsm-t-f", "nan"], "--vsm-t-f"),
+    (["--law", "pss", "--droop-k-f", "10"], "--droop-k-f applies to --law droop, not pss"),
+    (["--law", "droop", "--K", "2"], "--K is a gain of the NNI laws"),
+    (["--law", "droop", "--controller-rate", "continuous"], "it takes no --controller-rate continuous"),
+    (["--case", "kundur_two_area", "--law", "vsm", "--pss-k-s", "5"], "--pss-k-s applies to --law pss"),
+])
+def test_nni_simulate_refuses_bad_law_input_in_one_line(argv, message):
+    done = subprocess.run([sys.executable, "-m", "nni_battery_controller.simulate_command", *argv],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and done.stdout == ""
+    assert message in done.stderr and len(done.stderr.strip().splitlines()) == 1
+
+
+def test_nni_simulate_names_the_law_it_ran_and_droop_differs_from_nni():
+    outputs = {}
+    for name in ("nni", "droop"):
+        done = subprocess.run([sys.executable, "-m", "nni_battery_controller.simulate_command", "--law", name,
+                               "--b", "0.3", "--controller-rate", "50"], capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr
+        assert f"law {name}:" in done.stdout
+        outputs[name] = done.stdout.splitlines()[-2]
+    assert outputs["nni"] != outputs["droop"]
