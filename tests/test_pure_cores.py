@@ -35,6 +35,7 @@ ROS_SIDE = {
     "nni_msgs_adapter.c37118.client_node": "a node",
     # Decoding recorded CDR goes through the contract's message conversions.
     "nni_msgs_adapter.recording.runs": "reads recorded messages with the contract",
+    "nni_battery_controller.recorded_runs": "recorded runs as trajectories, through runs",
     "nni_msgs_adapter.recording.replay": "nni-replay's entry, on replay_load",
     "nni_msgs_adapter.recording.replay_load": "what every nni-replay job reads, through runs",
     "nni_msgs_adapter.recording.replay_ros": "ROS playback through replay_node",

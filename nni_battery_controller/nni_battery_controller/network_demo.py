@@ -80,7 +80,8 @@ from nni_battery_controller.network_deployment import (
     start_controllers,
 )
 from nni_battery_controller.network_sim import ANGLE_REFERENCES, NetworkLaw, assess_network
-from nni_msgs_adapter.recording.runs import network_trajectory, read_generator_runs
+from nni_battery_controller.recorded_runs import network_trajectory
+from nni_msgs_adapter.recording.runs import read_generator_runs
 from nni_msgs_adapter.c37118.cli import summary_line
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.cli_support import (

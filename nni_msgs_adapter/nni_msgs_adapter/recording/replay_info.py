@@ -111,8 +111,9 @@ def generator_lines(namespace: str, run: GeneratorRun) -> list[str]:
 def network_verdicts(network) -> dict:
     """``{"": the system's verdicts, namespace: that generator's}`` of :func:`network_sim.assess_network`."""
     from nni_battery_controller.network_sim import assess_network
+    from nni_battery_controller.recorded_runs import network_run_trajectory
 
-    outcome = assess_network(network.trajectory())[0].to_json()
+    outcome = assess_network(network_run_trajectory(network))[0].to_json()
     generators = outcome.pop("generators")
     return {"": outcome, **dict(zip(network.namespaces, generators))}
 
