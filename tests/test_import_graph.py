@@ -182,14 +182,10 @@ def test_each_form_of_import_is_an_edge_and_a_circle_is_named(tmp_path):
 LAYERS = ("nni_msgs_adapter", "nni_plant_sim", "nni_battery_controller", "bench")
 
 
-#: Modules that still import up the layers (issue 34: nni-replay's jobs rebuild a recording's case, scenario and
-#: verdicts from the physics; the Rerun bridge weighs the COI with the case's inertias). The list only shrinks:
+#: Modules that still import up the layers (issue 34: the Rerun bridge node loads its case to weigh the COI with
+#: the machines' inertias). The list only shrinks:
 #: a module that no longer imports up must leave it, and no other module may join it.
-NOT_YET_MOVED = {
-    "nni_msgs_adapter.recording.replay_c37118", "nni_msgs_adapter.recording.replay_info",
-    "nni_msgs_adapter.recording.replay_load", "nni_msgs_adapter.recording.replay_plot",
-    "nni_msgs_adapter.viewing.rerun_bridge",
-}
+NOT_YET_MOVED = {"nni_msgs_adapter.viewing.rerun_bridge"}
 
 
 def upward_imports(root: Path, package_dirs=PACKAGE_DIRS, layers=LAYERS, exempt=frozenset()) -> list[str]:

@@ -24,7 +24,7 @@ import numpy as np
 
 from nni_msgs_adapter.recording.mcap_io import Recording, parse_qos_profiles_yaml
 from nni_msgs_adapter.recording.network_runs import CASE_KEY, namespace_order
-from nni_msgs_adapter.recording.replay_load import load, readable_runs, recorded_network, recorded_scenario, trajectories
+from nni_battery_controller.replay_load import load, readable_runs, recorded_network, recorded_scenario, trajectories
 from nni_msgs_adapter.recording.runs import GeneratorRun, run_metadata
 
 #: Diagnostics keys of the plant's status that count what it did not trust or could not do, in this order.
