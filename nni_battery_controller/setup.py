@@ -27,6 +27,8 @@ setup(
             "composed_controllers = nni_battery_controller.composed_controllers:main",
             "nni-simulate = nni_battery_controller.simulate_command:main",
             "nni-demo = nni_battery_controller.demo_command:main",
+            "replay = nni_battery_controller.replay:main",
+            "nni-replay = nni_battery_controller.replay:main",
         ],
     },
 )

@@ -24,8 +24,6 @@ setup(
     entry_points={
         "console_scripts": [
             "mcap_logger = nni_msgs_adapter.recording.mcap_logger:main",
-            "replay = nni_msgs_adapter.recording.replay:main",
-            "nni-replay = nni_msgs_adapter.recording.replay:main",
             "rerun_bridge = nni_msgs_adapter.viewing.rerun_bridge:main",
             "c37118_client = nni_msgs_adapter.c37118.client_node:main",
         ],

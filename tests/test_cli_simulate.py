@@ -44,6 +44,8 @@ def test_default_run_prints_the_four_paper_cases(default_run):
     rows = [line.split() for line in result.stdout.splitlines()]
     table = {row[0]: row[1] for row in rows if row and row[0] in {"0", "0.2", "0.3", "inf"}}
     assert table == {"0": "NO", "0.2": "yes", "0.3": "yes", "inf": "yes"}
+    last_sat = {row[0]: row[5] for row in rows if row and row[0] in {"0", "inf"}}
+    assert last_sat == {"0": "-", "inf": "-"}  # no battery: nothing to saturate; b = inf never saturates
     assert result.stderr == ""
 
 

@@ -41,7 +41,6 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -279,20 +278,26 @@ def test_with_ros_default_subnet_discovery_the_decoy_hears_them(tmp_path):
     assert all(pair[1] == "239.255.0.1" for seen in heard.values() for pair in seen["pairs"]), run.decoy
 
 
-def test_without_root_the_test_fails_and_says_so():
-    """Where ``ip netns`` is not permitted (here: the same helper run as user nobody) a test fails, never skips."""
-    with tempfile.TemporaryDirectory() as folder:  # pytest's tmp_path is private to root
-        os.chmod(folder, 0o755)
-        probe = Path(folder) / "test_unprivileged.py"
-        probe.write_text("from netns import network\n\n\ndef test_needs_a_namespace():\n"
-                         "    with network() as net:\n        net.namespace()\n")
-        done = subprocess.run(["setpriv", "--reuid=nobody", "--regid=nogroup", "--clear-groups", sys.executable,
-                               "-m", "pytest", "-q", "-p", "no:cacheprovider", "-rfs", str(probe)],
-                              env={**os.environ, "PYTHONPATH": str(TESTS), "HOME": folder}, cwd=folder,
-                              capture_output=True, text=True, timeout=120)
+def test_without_root_the_test_fails_and_says_so(tmp_path):
+    """Where ``ip netns`` is not permitted (here: the same helper run without root's capabilities) a test fails.
+
+    The probe keeps uid 0 and drops every capability (``setpriv``), rather than
+    running as another user: that user could not read a checkout under a folder
+    private to its owner (a clone in a 0700 folder, as ``mktemp -d`` makes), so
+    could not even start the venv's python; without CAP_SYS_ADMIN, ``ip netns
+    add`` fails as it does for any user who is not root.
+    """
+    probe = tmp_path / "test_unprivileged.py"
+    probe.write_text("from netns import network\n\n\ndef test_needs_a_namespace():\n"
+                     "    with network() as net:\n        net.namespace()\n")
+    done = subprocess.run(["setpriv", "--bounding-set=-all", "--inh-caps=-all", "--no-new-privs", sys.executable,
+                           "-m", "pytest", "-q", "-p", "no:cacheprovider", "-rfs", str(probe)],
+                          env={**os.environ, "PYTHONPATH": str(TESTS)}, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
     assert done.returncode == 1, done.stdout + done.stderr
     assert "1 failed" in done.stdout and "skipped" not in done.stdout, done.stdout
     assert "this test needs root and `ip netns`" in done.stdout, done.stdout
+    assert "Operation not permitted" in done.stdout, done.stdout  # refused for want of privilege, not missing
 
 
 def test_the_network_helper_removes_everything_also_when_the_block_fails():

@@ -31,6 +31,10 @@ def test_kundur_fault_run_prints_per_generator_verdicts_and_writes_json_and_figu
     assert "reference coi" in heads[-1] and "b = 0.3 pu" in heads[-1]
     rows = [line.split() for line in lines if line.strip().startswith("G")]
     assert [row[0] for row in rows[:4]] == ["G1@1", "G2@2", "G3@3", "G4@4"]
+    # b = 0: no battery, so no saturation to leave ("-", not the run's last sample); b = 0.3 saturates and leaves.
+    # Tables in order pmu (b = 0, b = 0.3), then coi; G1 and G2 reach 0.3 pu (the JSON below) and leave it.
+    assert [row[-1] for row in rows[0:4] + rows[8:12]] == ["-"] * 8
+    assert all(0.0 < float(row[-1]) < 6.0 for row in rows[4:6] + rows[12:14])
     data = json.loads(out_json.read_text())
     assert data["generators"] == ["G1@1", "G2@2", "G3@3", "G4@4"]
     first = data["runs"][0]
@@ -39,6 +43,7 @@ def test_kundur_fault_run_prints_per_generator_verdicts_and_writes_json_and_figu
     assert {"name", "in_synchronism", "settled", "settling_time_s", "max_abs_battery_power_pu",
             "max_abs_battery_power_mw", "limit_pu", "last_saturated_s"} == set(first["generators"][0])
     assert first["b"] == 0 and first["generators"][0]["max_abs_battery_power_mw"] == 0.0
+    assert [g["last_saturated_s"] for g in first["generators"]] == [None] * 4
     with_battery = data["runs"][1]["generators"]
     assert max(g["max_abs_battery_power_pu"] for g in with_battery) == pytest.approx(0.3)
     assert max(g["max_abs_battery_power_mw"] for g in with_battery) == pytest.approx(270.0)  # 0.3 of 900 MVA

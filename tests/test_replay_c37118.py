@@ -36,7 +36,7 @@ from nni_battery_controller.network_deployment import plant_parameters
 from nni_msgs_adapter.c37118.client import PdcClient
 from nni_msgs_adapter.c37118.profile import LOCKSTEP_EPOCH_NS
 from nni_msgs_adapter.recording.mcap_io import Ros2McapWriter, qos_profiles_yaml, read_recording
-from nni_msgs_adapter.recording.replay_c37118 import RecordedStream
+from nni_battery_controller.replay_c37118 import RecordedStream
 from nni_msgs_adapter.recording.runs import RUN_METADATA_NAME, run_metadata
 from nni_msgs_adapter.ros import contract
 from nni_plant_sim.cases import load_network

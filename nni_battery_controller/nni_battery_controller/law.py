@@ -84,6 +84,15 @@ def is_saturated(w, limit_pu: float):
     return np.abs(w) >= limit_pu
 
 
+def last_saturated(instants, limit_pu: float) -> float | None:
+    """The last of the saturated ``instants`` (s), None if there are none or there is no battery.
+
+    With b = 0 the mode ``|w| >= b`` holds at every instant, but there is no
+    battery to saturate and so no saturation to leave: tables print "-".
+    """
+    return float(np.max(instants)) if limit_pu > 0 and np.size(instants) else None
+
+
 def x3_rate(x3, angle_dev_rad, saturated, ctrl: ControllerParams):
     """Controller state derivative x3' in pu/s for the given mode; vectorised."""
     return np.where(

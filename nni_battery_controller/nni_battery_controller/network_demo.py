@@ -80,7 +80,8 @@ from nni_battery_controller.network_deployment import (
 )
 from nni_battery_controller.network_sim import ANGLE_REFERENCES, assess_network
 from nni_battery_controller.options import add_network_law_options, network_laws_of
-from nni_msgs_adapter.recording.runs import network_trajectory, read_generator_runs
+from nni_battery_controller.recorded_runs import network_trajectory
+from nni_msgs_adapter.recording.runs import read_generator_runs
 from nni_msgs_adapter.c37118.cli import summary_line
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.cli_support import (

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from nni_battery_controller.law import ControllerParams
+from nni_battery_controller.law import ControllerParams, last_saturated
 from nni_battery_controller.laws import DEFAULT_LAW, SPEED_LAWS, ArrayLaw, Law
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.link import NO_LINK, DelayLine, Link, integrate_through
@@ -310,7 +310,7 @@ def assess_network(traj: NetworkTrajectory, settle_band_rad: float = SETTLE_BAND
             generators.append(GeneratorOutcome(
                 name, bool(pairwise <= POLE_SLIP_RAD), settled, settle_time if settled else None, peak * scale,
                 peak * net.base_mva, float(traj.limits_pu[i, r] * scale),
-                float(sat_times.max()) if sat_times.size else None))
+                last_saturated(sat_times, traj.limits_pu[i, r])))
         settled_all = all(g.settled for g in generators)
         coi_speed = float(net.coi(traj.speed_rad_s[-1, :, r]))
         outcomes.append(NetworkOutcome(in_sync, None if in_sync else float(t[slipped[0]]), settled_all,

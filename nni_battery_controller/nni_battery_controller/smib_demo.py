@@ -61,6 +61,7 @@ from nni_battery_controller.demo_viewer import (
 )
 from nni_battery_controller.figures import plot_runs
 from nni_battery_controller.options import PAPER_BATTERY_LIMITS, add_model_options, resolve_model
+from nni_battery_controller.recorded_runs import sampled_trajectory
 from nni_battery_controller.simulate import Trajectory
 from nni_battery_controller.verdicts import assess, verdict_text
 from nni_msgs_adapter.c37118.cli import summary_line
@@ -77,7 +78,7 @@ from nni_msgs_adapter.ros.cli_support import (
 from nni_msgs_adapter.ros.command_auth import run_key
 from nni_msgs_adapter.ros.processes import ChildError, Supervisor
 from nni_msgs_adapter.ros.readback import expected_parameters
-from nni_msgs_adapter.recording.runs import GeneratorRun, read_generator_run, sampled_trajectory
+from nni_msgs_adapter.recording.runs import GeneratorRun, read_generator_run
 from nni_msgs_adapter.viewing.bridge_protocol import PROGRESS_PREFIX
 from nni_msgs_adapter.ros.defaults import controller_defaults, plant_defaults
 from nni_plant_sim.cases import CASES

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from nni_battery_controller.law import last_saturated
 from nni_battery_controller.simulate import Trajectory
 from nni_plant_sim.model import SmibParams
 
@@ -153,7 +154,7 @@ def assess(traj: Trajectory, settle_band_rad: float = SETTLE_BAND_RAD, scenario=
         final_battery_power_pu=float(traj.battery_power_pu[-1]),
         max_abs_angle_dev_rad=float(np.max(np.abs(dev))),
         max_abs_battery_power_pu=float(np.max(np.abs(traj.battery_power_pu))),
-        last_saturated_s=_instant(saturated_instants.max()) if saturated_instants.size else None,
+        last_saturated_s=_instant(last_saturated(saturated_instants, traj.ctrl.battery_limit_pu)),
     )
 
 

@@ -96,17 +96,6 @@ class NetworkRun:
         """``delta_i - delta_COI`` (rad), ``delta_COI = sum M_i delta_i / sum M_i``."""
         return self.delta_rad - self.net.coi(self.delta_rad.T)[:, None]
 
-    def trajectory(self):
-        """The run as one :class:`network_sim.NetworkTrajectory` (R = 1, powers on the system base)."""
-        from nni_battery_controller.network_sim import NetworkTrajectory
-
-        scale = self.net.mbase_mva / self.net.base_mva
-        power = self.battery_power_pu * scale
-        known = np.where(np.isnan(self.limits_pu), 0.0, self.limits_pu)
-        return NetworkTrajectory(self.net, self.t_s, self.delta_rad[:, :, None], self.speed_rad_s[:, :, None],
-                                 power[:, :, None], np.zeros_like(power)[:, :, None], self.saturated[:, :, None],
-                                 (known * scale)[:, None])
-
 
 def network_run(net, runs: dict) -> NetworkRun:
     """Put a recording's generator runs (namespace -> ``GeneratorRun``) together as the network ``net``.

@@ -1,6 +1,6 @@
 """Replay node: publishes a planned recording (:class:`replay_ros.Playback`) with its original timing.
 
-The ROS half of ``nni-replay``; the command line is in :mod:`nni_msgs_adapter.recording.replay`,
+The ROS half of ``nni-replay``; the command line is in :mod:`nni_battery_controller.replay`,
 the reading in :mod:`replay_load` and the planning in :mod:`replay_ros`, which imports
 this module only for ROS playback. Messages go out as recorded CDR bytes (``publish`` of
 ``bytes``), on their recorded topic names, with the planned QoS. One timer drives the

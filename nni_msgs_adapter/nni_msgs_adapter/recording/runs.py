@@ -144,51 +144,6 @@ class _Collected:
     skipped: list = field(default_factory=list)
 
 
-def sampled_trajectory(run: GeneratorRun, plant, ctrl):
-    """The run as the sampled :class:`nni_battery_controller.simulate.Trajectory` that ``assess`` judges.
-
-    The one conversion of a recorded run for the demo's summary and for replay's
-    verdicts and figures. ``plant`` (:class:`nni_plant_sim.model.SmibParams`) and
-    ``ctrl`` (:class:`nni_battery_controller.law.ControllerParams`) are the
-    parameters the run was made with; x3, w and saturation come from
-    ``controller/state`` (NaN / False where the controller did not report).
-    """
-    from nni_battery_controller.simulate import Trajectory
-
-    return Trajectory(plant, ctrl, run.t_s, run.delta_rad, run.speed_rad_s, run.signals["x3"], run.battery_power_pu,
-                      run.signals["w"], run.saturated, np.empty(0))
-
-
-def network_trajectory(runs: dict[str, GeneratorRun], net, namespaces, limits_pu_mbase):
-    """The generators of one network run as a one-run :class:`nni_battery_controller.network_sim.NetworkTrajectory`.
-
-    ``namespaces[i]`` holds generator i of ``net`` (:class:`nni_plant_sim.network.Network`);
-    ``limits_pu_mbase`` (N,) are their battery limits in pu of each machine's rating.
-    Powers are recorded in pu of each machine's rating and converted to the system
-    base, as the offline simulation keeps them.
-
-    Raises
-    ------
-    RecordingError
-        If a namespace is missing or the generators were not recorded at the same instants.
-    """
-    from dataclasses import replace
-
-    from nni_msgs_adapter.recording.network_runs import network_run
-
-    missing = [ns for ns in namespaces if ns not in runs]
-    if missing:
-        raise RecordingError(f"no {contract.TOPIC_PLANT_STATE} in namespace(s) {', '.join(missing)}")
-    chosen = [runs[ns] for ns in namespaces]
-    stamps = chosen[0].stamp_ns
-    uneven = [run.namespace for run in chosen if not np.array_equal(run.stamp_ns, stamps)]
-    if uneven:
-        raise RecordingError(f"{', '.join(uneven)} recorded other instants than {chosen[0].namespace} "
-                             f"({', '.join(str(run.stamp_ns.size) for run in chosen)} states)")
-    run = network_run(net, dict(zip(namespaces, chosen)))
-    return replace(run, limits_pu=np.asarray(limits_pu_mbase, dtype=float)).trajectory()
-
-
 def read_generator_runs(path: str | os.PathLike[str]) -> dict[str, GeneratorRun]:
     """Every generator of a recording, by namespace.
 

@@ -51,7 +51,7 @@ import numpy as np
 from nni_msgs_adapter.c37118 import cli
 from nni_msgs_adapter.c37118.clock_sync import UNKNOWN
 from nni_msgs_adapter.recording.network_runs import namespace_order, recorded_case
-from nni_msgs_adapter.recording.replay_load import PROG, load, readable_runs
+from nni_battery_controller.replay_load import PROG, load, readable_runs
 from nni_msgs_adapter.recording.runs import run_metadata, split_topic
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.cli_support import CliError

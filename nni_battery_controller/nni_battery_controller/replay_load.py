@@ -17,7 +17,7 @@ from dataclasses import replace
 from nni_msgs_adapter.ros.cli_support import CliError
 from nni_msgs_adapter.recording.mcap_io import Recording, read_recording
 from nni_msgs_adapter.recording.network_runs import network_run, recorded_case
-from nni_msgs_adapter.recording.runs import GeneratorRun, generator_runs, sampled_trajectory
+from nni_msgs_adapter.recording.runs import GeneratorRun, generator_runs
 
 #: The program name, at the start of every line nni-replay prints about its input and output.
 PROG = "nni-replay"
@@ -92,6 +92,7 @@ def trajectories(recording: Recording, runs: dict[str, GeneratorRun], parameters
     b is the one the controller reported in the run (``controller/state``), where it did.
     """
     from nni_battery_controller.law import ControllerParams
+    from nni_battery_controller.recorded_runs import sampled_trajectory
     from nni_plant_sim.model import SmibParams
 
     plant = _dataclass_from(SmibParams, parameters.get("plant"), "plant", recording.path)

@@ -1,4 +1,4 @@
-"""``nni-replay`` (``ros2 run nni_msgs_adapter replay``): play a recording back, view it, describe it.
+"""``nni-replay`` (``ros2 run nni_battery_controller replay``): play a recording back, view it, describe it.
 
 The entry point: the command line and its dispatch to one job, each in a module named after it.
 
@@ -40,12 +40,12 @@ from nni_msgs_adapter.c37118.cli import add_pmu_options, refuse_without_server
 from nni_msgs_adapter.ros.cli_support import (
     CliError, OneLineParser, finite_float, positive_float, run_cli, writable_output,
 )
-from nni_msgs_adapter.recording.replay_c37118 import serve
-from nni_msgs_adapter.recording.replay_info import describe
-from nni_msgs_adapter.recording.replay_load import PROG
-from nni_msgs_adapter.recording.replay_plot import plot
-from nni_msgs_adapter.recording.replay_rerun import DEFAULT_VIEWER_PORT, connect_url, convert
-from nni_msgs_adapter.recording.replay_ros import DEFAULT_WAIT_FOR_SUBSCRIBERS, play
+from nni_battery_controller.replay_c37118 import serve
+from nni_battery_controller.replay_info import describe
+from nni_battery_controller.replay_load import PROG
+from nni_battery_controller.replay_plot import plot
+from nni_battery_controller.replay_rerun import DEFAULT_VIEWER_PORT, connect_url, convert
+from nni_battery_controller.replay_ros import DEFAULT_WAIT_FOR_SUBSCRIBERS, play
 
 _ROS_ONLY = {"rate": 1.0, "loop": False, "start_offset": 0.0, "clock": False,
              "wait_for_subscribers": DEFAULT_WAIT_FOR_SUBSCRIBERS, "wait_topic": None, "domain_id": None}
@@ -126,7 +126,7 @@ def refuse_options(args, ros_args: list[str], defaults: dict, kind: str, use: st
 
 
 def main(argv=None) -> int:
-    """Entry point of ``nni-replay`` and ``ros2 run nni_msgs_adapter replay``."""
+    """Entry point of ``nni-replay`` and ``ros2 run nni_battery_controller replay``."""
     own, ros_args = split_ros_args(sys.argv[1:] if argv is None else list(argv))
     parser = build_parser()
 

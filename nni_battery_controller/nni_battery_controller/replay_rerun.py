@@ -33,7 +33,7 @@ from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.cli_support import CliError, atomic_output
 from nni_msgs_adapter.recording.mcap_io import RecordingError
 from nni_msgs_adapter.recording.network_runs import CASE_KEY
-from nni_msgs_adapter.recording.replay_load import PROG, load, readable_runs, recorded_network, warn
+from nni_battery_controller.replay_load import PROG, load, readable_runs, recorded_network, warn
 from nni_msgs_adapter.recording.runs import GeneratorRun, run_metadata
 from nni_msgs_adapter.viewing.bridge_protocol import display_missing
 

@@ -34,7 +34,7 @@ from dataclasses import dataclass, replace
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.cli_support import CliError
 from nni_msgs_adapter.recording.mcap_io import OfferedQos, RecordedMessage, parse_qos_profiles_yaml
-from nni_msgs_adapter.recording.replay_load import PROG, load
+from nni_battery_controller.replay_load import PROG, load
 from nni_msgs_adapter.recording.runs import check_has_plant_state, check_message_type, split_topic
 
 #: Subscribers a playback waits for by default: someone must listen (see the module docstring).

@@ -14,7 +14,7 @@ from __future__ import annotations
 from nni_msgs_adapter.ros.cli_support import CliError
 from nni_msgs_adapter.recording.mcap_io import Recording
 from nni_msgs_adapter.recording.network_runs import CASE_KEY
-from nni_msgs_adapter.recording.replay_load import PROG, load, readable_runs, recorded_network, recorded_scenario, trajectories
+from nni_battery_controller.replay_load import PROG, load, readable_runs, recorded_network, recorded_scenario, trajectories
 from nni_msgs_adapter.recording.runs import run_metadata
 
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from nni_msgs_adapter.recording.mcap_io import Recording, parse_qos_profiles_yaml
 from nni_msgs_adapter.recording.network_runs import CASE_KEY, namespace_order
-from nni_msgs_adapter.recording.replay_load import load, readable_runs, recorded_network, recorded_scenario, trajectories
+from nni_battery_controller.replay_load import load, readable_runs, recorded_network, recorded_scenario, trajectories
 from nni_msgs_adapter.recording.runs import GeneratorRun, run_metadata
 
 #: Diagnostics keys of the plant's status that count what it did not trust or could not do, in this order.
@@ -111,8 +111,9 @@ def generator_lines(namespace: str, run: GeneratorRun) -> list[str]:
 def network_verdicts(network) -> dict:
     """``{"": the system's verdicts, namespace: that generator's}`` of :func:`network_sim.assess_network`."""
     from nni_battery_controller.network_sim import assess_network
+    from nni_battery_controller.recorded_runs import network_run_trajectory
 
-    outcome = assess_network(network.trajectory())[0].to_json()
+    outcome = assess_network(network_run_trajectory(network))[0].to_json()
     generators = outcome.pop("generators")
     return {"": outcome, **dict(zip(network.namespaces, generators))}
 
