@@ -43,7 +43,6 @@ from nni_battery_controller.demo_common import (
     logger_counts,
     plant_summary,
     run_environment,
-    software_version,
     start_when_read_back,
     wait_for_recorder,
     write_summary,
@@ -80,6 +79,7 @@ from nni_battery_controller.network_deployment import (
     start_controllers,
 )
 from nni_battery_controller.network_sim import ANGLE_REFERENCES, NetworkLaw, assess_network
+from nni_battery_controller.study_common import software_version
 from nni_msgs_adapter.recording.runs import network_trajectory, read_generator_runs
 from nni_msgs_adapter.c37118.cli import summary_line
 from nni_msgs_adapter.ros import contract
