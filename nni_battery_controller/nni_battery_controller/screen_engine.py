@@ -71,13 +71,30 @@ def run_tasks(spec, settings, tasks, store, workers: int, scheduler: str | None)
         started, compute_s = time.perf_counter(), 0.0
         with _bar(total, "serial") as bar:
             for index, names in tasks:
-                result = screening.screen_chunk(spec, settings, names)
+                result = _interruptible(screening.screen_chunk, spec, settings, names)
                 store.add(index, result["rows"])
                 compute_s += result["compute_s"]
                 bar.update(len(names))
         return {"engine": "serial", "workers": 0, "tasks": len(tasks), "compute_s": compute_s,
                 "wall_s": time.perf_counter() - started}
     return _run_on_dask(spec, settings, tasks, store, workers, scheduler, total)
+
+
+def _interruptible(function, *args):
+    """``function(*args)``, a Ctrl-C inside the compiled RK4 raised as the KeyboardInterrupt it is.
+
+    numba's dispatcher turns an interrupt during a compiled call into a SystemError caused by the
+    KeyboardInterrupt (sometimes through a second SystemError of its own).
+    """
+    try:
+        return function(*args)
+    except SystemError as error:
+        cause = error
+        while cause is not None and not isinstance(cause, KeyboardInterrupt):
+            cause = cause.__cause__ or cause.__context__
+        if cause is not None:
+            raise KeyboardInterrupt from None
+        raise
 
 
 def _connect(workers: int, scheduler: str | None):

@@ -15,6 +15,7 @@ Pure python: no ROS import.
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -188,8 +189,14 @@ def run_screen(args) -> int:
     from nni_battery_controller.screen_engine import default_workers, run_tasks
 
     workers = default_workers() if args.workers is None else args.workers
-    stats = run_tasks(spec, settings, tasks, store, workers, args.scheduler) if tasks else \
-        {"engine": "none (nothing left to compute)", "workers": 0, "tasks": 0, "compute_s": 0.0, "wall_s": 0.0}
+    try:
+        stats = run_tasks(spec, settings, tasks, store, workers, args.scheduler) if tasks else \
+            {"engine": "none (nothing left to compute)", "workers": 0, "tasks": 0, "compute_s": 0.0, "wall_s": 0.0}
+    except KeyboardInterrupt:
+        kept = f"; {len(store.done())} of {len(screened)} contingencies are in {args.out} (--resume continues)" \
+            if args.out is not None else "; nothing kept (no --out)"
+        print(f"nni-simulate: interrupted{kept}", file=sys.stderr)
+        raise
     rows = sorted(store.rows, key=lambda row: (screened.index(row["contingency"]), laws.index(row["law"]),
                                                settings.limits_pu.index(row["b"])))
     print(f"weakest contingencies (shortest critical clearing time first; 'none': lost even when cleared at "
