@@ -96,20 +96,20 @@ def open_store(folder: Path | None, manifest: dict, resume: bool) -> ScreenStore
             raise CliError(f"--resume: {path} cannot be read ({error}); nothing written") from None
         if not isinstance(found, dict) or found.get("format") != FORMAT:
             raise CliError(f"--resume: {path} is not a screen's manifest; nothing written")
-        if found.get("case_digest") != manifest["case_digest"]:
-            raise CliError(f"--resume: {folder} is a screen of another case ({found.get('case')}, data "
-                           f"{str(found.get('case_digest'))[:12]}; this is {manifest['case']}, data "
-                           f"{manifest['case_digest'][:12]}); nothing written")
-        if found.get("software_version") != manifest["software_version"]:
-            raise CliError(f"--resume: {folder} was written by version {found.get('software_version')} (this is "
-                           f"{manifest['software_version']}); nothing written")
-        if found.get("settings") != manifest["settings"]:
-            raise CliError(f"--resume: {folder} is a screen with other settings ("
-                           f"{'; '.join(_differences(found.get('settings') or {}, manifest['settings']))}); "
-                           f"nothing written")
-        if found.get("contingencies") != manifest["contingencies"]:
-            raise CliError(f"--resume: {folder} screens other contingencies ({len(found.get('contingencies', []))} "
-                           f"there, {len(manifest['contingencies'])} here); nothing written")
+        differs = {  # what is checked, in order, and what the refusal says of the folder
+            "case_digest": lambda: f"is a screen of another case ({found.get('case')}, data "
+                                   f"{str(found.get('case_digest'))[:12]}; this is {manifest['case']}, data "
+                                   f"{manifest['case_digest'][:12]})",
+            "software_version": lambda: f"was written by version {found.get('software_version')} (this is "
+                                        f"{manifest['software_version']})",
+            "settings": lambda: "is a screen with other settings ("
+                                + "; ".join(_differences(found.get("settings") or {}, manifest["settings"])) + ")",
+            "contingencies": lambda: f"screens other contingencies ({len(found.get('contingencies') or [])} there, "
+                                     f"{len(manifest['contingencies'])} here)",
+        }
+        for key, refusal in differs.items():
+            if found.get(key) != manifest[key]:
+                raise CliError(f"--resume: {folder} {refusal()}; nothing written")
         return ScreenStore(folder, found)
     if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
         raise CliError(f"--out {folder} is not an empty folder"
