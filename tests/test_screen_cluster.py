@@ -2,7 +2,8 @@
 two `dask worker` processes on 127.0.0.1 reached with ``--scheduler``.
 
 Both give the rows of the serial path (``--workers 0``) of the same contingencies; every process a test
-starts is stopped by it.
+starts is stopped by it. Both depend on timing (a kill mid-screen, workers joining), so they run with two
+busy processes beside them.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ def workers_of(pid: int) -> list:
             if "spawn_main" in " ".join(child.cmdline())]
 
 
-def test_a_worker_killed_mid_screen_loses_no_row(tmp_path):
+def test_a_worker_killed_mid_screen_loses_no_row(tmp_path, busy):
     out = tmp_path / "out"
     proc = subprocess.Popen([SIMULATE, *SCREEN, "--workers", "2", "--out", str(out), "--json",
                              str(tmp_path / "cluster.json")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -103,7 +104,7 @@ def dask_cluster(tmp_path):
             log.close()
 
 
-def test_a_screen_through_scheduler_runs_on_the_clusters_two_workers(tmp_path, dask_cluster):
+def test_a_screen_through_scheduler_runs_on_the_clusters_two_workers(tmp_path, dask_cluster, busy):
     result = subprocess.run([SIMULATE, *SCREEN, "--contingencies", *SOME, "--scheduler", dask_cluster, "--json",
                              str(tmp_path / "remote.json")], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
