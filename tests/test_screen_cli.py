@@ -160,3 +160,16 @@ def test_resume_refuses_a_folder_of_another_case_version_or_settings_and_writes_
     assert "was written by version 0.0.1 (this is" in other_version.stderr
     assert sorted(path.name for path in older.iterdir()) == ["manifest.json"]
     assert {path: path.read_bytes() for path in folder.rglob("*") if path.is_file()} == before
+
+
+def test_a_users_matpower_case_is_screened_from_its_text(serial, tmp_path):
+    cases = Path(__file__).resolve().parent.parent / "nni_plant_sim" / "nni_plant_sim" / "cases"
+    (tmp_path / "mine.m").write_text((cases / "kundur_two_area.m").read_text())
+    (tmp_path / "mine.csv").write_text((cases / "kundur_two_area_machines.csv").read_text())
+    result = subprocess.run([SIMULATE, "--case", str(tmp_path / "mine.m"), "--machines", str(tmp_path / "mine.csv"),
+                             "--f0", "60", "--screen", "--b", "0", "0.1", "--contingencies", "line:7-8@7", "--workers",
+                             "0", "--json", str(tmp_path / "mine.json")], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    mine = json.loads((tmp_path / "mine.json").read_text())
+    assert mine["case_digest"] == serial[1]["case_digest"]  # the same data as the shipped case
+    assert mine["rows"] == [row for row in serial[1]["rows"] if row["contingency"] == "line:7-8:1@7"]
