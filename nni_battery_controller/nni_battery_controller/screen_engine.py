@@ -40,7 +40,7 @@ class WarmRk4(WorkerPlugin):
     name = "nni-warm-rk4"
 
     def setup(self, worker) -> None:
-        worker.nni_warm_up_s = screening.warm_up()
+        screening.warm_up()
 
 
 def default_workers() -> int:
