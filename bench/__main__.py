@@ -31,7 +31,11 @@ Each table sets a measurement beside a baseline taken in the same run:
    HMAC-SHA256 seal and the plant's check, beside the bare publish;
 10. the C37.118 PMU server's frames/s for 1, 10 and 52 stations beside a bare
     socket-send floor of the same bytes, and its reporting latency (sample
-    instant to arrival at a PDC process) at 50 frames/s.
+    instant to arrival at a PDC process) at 50 frames/s;
+11. the contingency screen (``nni-simulate --case --screen``): IEEE 39's bus
+    faults x 4 b serial beside a 2-worker LocalCluster (speed-up, task
+    overhead share), contingencies per second for IEEE 39, 118 and 300, the
+    full IEEE 39 N-1 screen, and one contingency's bisection beside ANDES'.
 
 Node processes are started exactly as ``nni-demo`` starts them; discovery stays
 on localhost (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) in a ROS domain of the
@@ -59,6 +63,7 @@ from bench.network_profile import PROFILE_QUICK_RUN, PROFILE_RUN, bench_network_
 from bench.network_realtime import bench_network_realtime
 from bench.report import report
 from bench.roa import bench_roa
+from bench.screening import ANDES_PYTHON, bench_screening
 from nni_msgs_adapter.ros.command_auth import KEY_FILE_ENV, run_key
 from nni_msgs_adapter.ros.processes import ChildError
 
@@ -67,7 +72,7 @@ from nni_msgs_adapter.ros.processes import ChildError
 ROUNDS = 3
 #: What --only selects (all by default).
 BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime", "network-profile", "c37118-loop",
-              "command-auth", "c37118-server")
+              "command-auth", "c37118-server", "screening")
 
 
 def parse_args(argv=None):
@@ -80,13 +85,16 @@ def parse_args(argv=None):
     parser.add_argument("--domain-id", type=int, default=87, help="ROS_DOMAIN_ID of the benchmark (default 87)")
     parser.add_argument("--rates", type=float, nargs="+", default=[50.0, 100.0, 500.0, 1000.0],
                         help="latency benchmark rates, measurements/s")
+    parser.add_argument("--andes-python", type=Path, default=ANDES_PYTHON,
+                        help=f"the python of a venv with ANDES (screening's comparison; default {ANDES_PYTHON})")
     args = parser.parse_args(argv)
     if not 0 <= args.domain_id <= 232:
         parser.error(f"ROS domain id must be within 0..232, got {args.domain_id}")
     return args
 
 
-def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates, domain_id: int) -> dict:
+def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates, domain_id: int,
+                   andes_python: Path = ANDES_PYTHON) -> dict:
     """Each benchmark ``only`` names, with the durations of a full run (or ``quick``'s); results by report section."""
     duration_s = 6.0 if quick else 30.0
     results = {}
@@ -115,6 +123,8 @@ def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates, domain_i
     if "c37118-server" in only:
         results["c37118-server"] = bench_c37118_server(
             env, C37118_SERVER_FRAMES // 10 if quick else C37118_SERVER_FRAMES, 5.0 if quick else duration_s)
+    if "screening" in only:
+        results["screening"] = bench_screening(quick, andes_python)
     return results
 
 
@@ -129,7 +139,8 @@ def main(argv=None) -> int:
     with run_key() as key:  # the plants and controllers authenticate their commands as nni-demo's do
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])),
                    **{KEY_FILE_ENV: str(key)})
-        results = run_benchmarks(env, log_root, args.only, args.quick, args.rates, args.domain_id)
+        results = run_benchmarks(env, log_root, args.only, args.quick, args.rates, args.domain_id,
+                                 args.andes_python)
     machine["load_average_at_end"] = os.getloadavg()
     text = report(command, machine, args.quick, results, started_text, time.monotonic() - started)
     tmp = args.out.with_name(args.out.name + ".part")

@@ -14,7 +14,8 @@ HEADINGS = ["## 1. Closed-loop latency", "### 1b. The controller's share", "## 2
             "## 3. Region-of-attraction sweep", "## 4. Network lockstep throughput", "## 5. Network realtime",
             "## 6. Memory per controller", "## 8. Latency the C37.118 path adds to the loop",
             "## 9. Authenticated battery commands",
-            "## 10. C37.118 PMU server: frames per second and reporting latency"]
+            "## 10. C37.118 PMU server: frames per second and reporting latency",
+            "## 11. Contingency screen: serial beside a 2-worker LocalCluster"]
 
 
 def latency_row(rate_hz: float, p50_ratio: float, misses: int = 0) -> dict:
@@ -83,7 +84,24 @@ def results(latency_ratio: float = 1.2, network_ratio: float = 1.8) -> dict:
         "c37118-loop": c37118_loop_result(0.6),
         "command-auth": COMMAND_AUTH,
         "c37118-server": c37118_server_result(3.0),
+        "screening": screening_result(40.0, 0.5),
     }
+
+
+def screen_run(engine: str, workers: int, wall_s: float, compute_s: float, contingencies: int = 39) -> dict:
+    return {"engine": {"engine": engine, "workers": workers, "tasks": contingencies, "compute_s": compute_s,
+                       "wall_s": wall_s}, "command_s": wall_s + 3.0, "contingencies": contingencies, "skipped": 0}
+
+
+def screening_result(cluster_wall_s: float, idle_s: float, andes=None) -> dict:
+    """Serial 76 s; the cluster's two workers computing 76 s over ``cluster_wall_s`` less ``idle_s`` each."""
+    return {"quick": False, "limits": ("0", "0.1", "0.3", "inf"), "same_rows": True,
+            "serial": screen_run("serial", 0, 76.0, 76.0),
+            "cluster": screen_run("LocalCluster", 2, cluster_wall_s, 2 * (cluster_wall_s - idle_s)),
+            "rates": [{"case": "ieee118", **screen_run("LocalCluster", 2, 80.0, 150.0, 8)}],
+            "n1": screen_run("LocalCluster", 2, 116.0, 220.0, 109),
+            "andes_fault": {"bus": 16, "fault_x": 1e-4, "duration_s": 5.0, "cct_max_s": 0.6, "ours_s": 0.5,
+                            "ours_cct_s": 0.153, "andes": andes}}
 
 
 COMMAND_AUTH = {"bare_publish_us": 12.5, "sign_us": 3.25, "sealed_publish_us": 16.0, "verify_us": 4.5,
@@ -287,3 +305,22 @@ def test_a_c37118_server_run_that_could_not_complete_is_reported_beside_the_rows
 def test_the_network_realtime_section_states_its_rounds_and_their_length():
     """Issue 23 judges realtime on 3 rounds of 30 s: the page says how long each round ran, not a total."""
     assert "per deployment 3 alternating round(s) of 30 s: the loop" in page(results())
+
+
+@pytest.mark.parametrize("cluster_wall_s, idle_s, verdicts", [
+    (40.0, 0.5, ("1.90x the serial path >= 1.8x: met", "task overhead 1.2 % < 5 %: met")),
+    (45.0, 4.0, ("1.69x the serial path >= 1.8x: **not met**", "task overhead 8.9 % < 5 %: **not met**")),
+])
+def test_the_screen_is_judged_on_its_speed_up_and_its_task_overhead(cluster_wall_s, idle_s, verdicts):
+    text = page({"screening": screening_result(cluster_wall_s, idle_s)})
+    for words in verdicts:
+        assert words in text
+    assert "the IEEE 39 N-1 screen in 119 s < 600 s: met" in text
+    assert "ANDES not run (a --quick run)" in text
+
+
+def test_the_screens_bisection_is_set_beside_andes_as_a_ratio():
+    andes = {"cct_s": 0.153, "runs": 10, "s": 60.0}
+    text = page({"screening": screening_result(40.0, 0.5, andes)})
+    assert "ours 0.50 s (CCT 0.153" in text and "ANDES 2.0 60.0 s (10 runs" in text
+    assert "ANDES / ours = **120x**" in text

@@ -309,18 +309,20 @@ def test_ieee39_demo_runs_ten_controllers_and_leaves_nothing(tmp_path):
         f"controller_gen{i}.log" for i in range(1, 11))
 
 
-def test_the_52_generator_ring_runs_through_the_demo_composed_on_this_machine(tmp_path):
-    """kundur_ring_52 with its 52 controllers composed in one process (1 s lockstep, about 17 s here):
-    every generator's row and loop row printed, every sample answered, nothing left running."""
-    result, children, marker = run_demo(["--case", "kundur_ring_52", "--deployment", "composed", "--b", "0.1",
+@pytest.mark.parametrize("case, size", [("kundur_ring_52", 52), ("ieee118", 54), ("ieee300", 69)])
+def test_the_large_cases_run_through_the_demo_composed_on_this_machine(tmp_path, case, size):
+    """kundur_ring_52, IEEE 118 and IEEE 300 with their controllers composed in one process (1 s lockstep, 10 to
+    20 s each here): every generator's row and loop row printed, every sample answered, nothing left running.
+    IEEE 118's synchronous condensers (dispatched at 0) run as any other machine."""
+    result, children, marker = run_demo(["--case", case, "--deployment", "composed", "--b", "0.1",
                                          "--duration", "1", "--out", str(tmp_path)], fresh_domain_id())
     assert result.returncode == 0, result.stderr
     assert len(children) == 3, "logger, composed_controllers, plant"
     assert_nothing_left(children, marker)
-    net = load_network("kundur_ring_52")
-    assert net.size == 52 and set(table_rows(result.stdout, net.names)) == set(net.names), result.stdout
+    net = load_network(case)
+    assert net.size == size and set(table_rows(result.stdout, net.names)) == set(net.names), result.stdout
     (run,) = json.loads((tmp_path / "summary.json").read_text())["runs"]
-    assert list(run["generators"]) == [f"gen{i}" for i in range(1, 53)]
+    assert list(run["generators"]) == [f"gen{i}" for i in range(1, size + 1)]
     short = {ns: (g["samples"], g["dropped_samples"], g["logger_counts"]) for ns, g in run["generators"].items()
              if g["samples"] != 50 or g["dropped_samples"] or g["logger_counts"][f"/{ns}/plant/state"] != 51}
     assert short == {}, short

@@ -190,6 +190,10 @@ def centre_of_inertia(values: dict, namespace: str) -> tuple | None:
     return tuple(names), tuple(m / total for m in inertias), names.index(namespace)
 
 
+#: Below this (pu of the rating) a negative pre-fault power is the load flow's rounding of a unit at 0.
+P_MECH_ROUNDING_PU = 1e-9
+
+
 def generator_parameters(net, index: int, reference: str = "pmu") -> dict:
     """The network-specific controller parameters of generator ``index`` (case order) of ``net`` (a Network).
 
@@ -199,7 +203,10 @@ def generator_parameters(net, index: int, reference: str = "pmu") -> dict:
     Gains, b and the rate are the caller's.
     """
     scale = float(net.mbase_mva[index] / net.base_mva)
-    values = {"restoring_power": "measured", "p_mech_pu": float(net.p_mech_pu[index]) / scale}
+    p_mech = float(net.p_mech_pu[index]) / scale
+    # A unit dispatched at 0 (IEEE 118's synchronous condensers) comes out of the load flow at -1e-15 or so:
+    # rounding, not a motor; the parameter's range (>= 0) still refuses a real negative power.
+    values = {"restoring_power": "measured", "p_mech_pu": 0.0 if -P_MECH_ROUNDING_PU < p_mech < 0.0 else p_mech}
     if reference == "coi":
         return {**values, "reference": "coi",
                 "reference_angle_rad": float(net.delta_bar_rad[index]) - float(net.coi(net.delta_bar_rad)),

@@ -20,7 +20,6 @@ import os
 import signal
 import sys
 import time
-from importlib import metadata
 from pathlib import Path
 
 import numpy as np
@@ -43,14 +42,6 @@ EXIT_COMPROMISED = 3
 TRUST_COUNTERS = COMPROMISING_KEYS
 #: Longest wait, s, for a node to state the parameters it runs with (its process starting, imports included).
 READBACK_WAIT_S = 120.0
-
-
-def software_version() -> str:
-    """Version of the installed nni_battery_controller package."""
-    try:
-        return metadata.version("nni_battery_controller")
-    except metadata.PackageNotFoundError:
-        return "unknown"
 
 
 def compromised_reasons(plant_summary: dict, run: GeneratorRun, b: float) -> dict:

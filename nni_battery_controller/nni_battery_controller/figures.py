@@ -4,7 +4,10 @@
   runs (``nni-simulate``, ``nni-demo``, ``nni-replay``);
 * :func:`roa_figure`: the region of attraction of each b (``nni-simulate --roa``);
 * :func:`plot_network`: angles, frequencies and battery powers of network runs
-  (``nni-simulate --case``, ``nni-demo --case``).
+  (``nni-simulate --case``, ``nni-demo --case``);
+* :func:`screen_heatmap`, :func:`screen_gain_chart`: a contingency screen's
+  critical clearing times and their gain with batteries (``nni-simulate --case
+  --screen``).
 
 Each PNG carries its figure's title in its Title text chunk (:func:`save_png`).
 matplotlib is imported by the function that draws, so that a command that
@@ -17,6 +20,7 @@ import math
 
 import numpy as np
 
+from nni_battery_controller.network_common import limit_words
 from nni_battery_controller.roa import RETURNS, STAYS, RoaGrid
 from nni_battery_controller.verdicts import verdict_text
 from nni_msgs_adapter.ros.cli_support import atomic_output
@@ -197,3 +201,86 @@ def plot_network(runs, title: str, path) -> None:
     fig.suptitle(title, wrap=True)
     save_png(fig, path)
     plt.close(fig)
+
+
+def _cct_grid(rows, contingencies, columns):
+    """CCT (s) per contingency (rows) and (law, b) column; NaN where none is known, 0 where even 1 ms loses."""
+    index = {(row["contingency"], row["law"], row["b"]): row for row in rows}
+    grid = np.full((len(contingencies), len(columns)), np.nan)
+    open_top = np.zeros(grid.shape, dtype=bool)
+    for i, name in enumerate(contingencies):
+        for j, (law, b) in enumerate(columns):
+            row = index.get((name, law, b))
+            if row is not None:
+                grid[i, j] = 0.0 if row["cct_s"] is None else row["cct_s"]
+                open_top[i, j] = row["at_search_limit"]
+    return grid, open_top
+
+
+def _screen_figure(count: int):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(9, max(4.0, min(0.16 * count + 2.0, 80.0))), layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _label_contingencies(ax, names, order_text: str) -> None:
+    ax.set_yticks(range(len(names)), names if len(names) <= 400 else [""] * len(names),
+                  fontsize=7 if len(names) <= 60 else 5)
+    ax.set_ylabel(f"contingency ({order_text} at the top)")
+
+
+def screen_heatmap(rows, contingencies, columns, title: str, cct_max_s: float, path) -> None:
+    """Contingency x (law, b): the critical clearing time in ms as colour, weakest contingency at the top.
+
+    ``columns`` is a list of ``(law, b)``; contingencies are ordered by the
+    first column's CCT (shortest first); a CCT at the search's upper end is
+    marked ``>=``, one that loses synchronism even at 1 ms is 0.
+    """
+    grid, open_top = _cct_grid(rows, contingencies, columns)
+    order = np.argsort(np.nan_to_num(grid[:, 0], nan=np.inf), kind="stable")
+    fig = _screen_figure(len(contingencies))
+    ax = fig.subplots()
+    image = ax.imshow(grid[order] * 1e3, aspect="auto", cmap="viridis", vmin=0.0, vmax=cct_max_s * 1e3,
+                      interpolation="nearest")
+    for i, k in enumerate(order):
+        for j in range(len(columns)):
+            if open_top[k, j] and len(contingencies) <= 120:
+                ax.text(j, i, ">=", ha="center", va="center", fontsize=5, color="black")
+    ax.set_xticks(range(len(columns)), [f"{limit_words(b)}\n{law}" for law, b in columns], fontsize=8)
+    _label_contingencies(ax, [contingencies[k] for k in order], "shortest CCT")
+    fig.colorbar(image, ax=ax, label="critical clearing time (ms); >= : at the search's upper end")
+    fig.suptitle(title, fontsize=10, wrap=True)
+    save_png(fig, path)
+
+
+def screen_gain_chart(rows, contingencies, columns, baseline, title: str, path) -> None:
+    """Per contingency, the CCT gain (ms) of each battery limit over ``baseline`` (the same law without battery).
+
+    ``columns``: the ``(law, b)`` with batteries; ``baseline[law]`` the
+    ``(law, 0)`` column. A gain whose CCT is at the search's upper end is a
+    lower bound (hatched). Contingencies ordered by the first column's gain.
+    """
+    grid, open_top = _cct_grid(rows, contingencies, columns)
+    base, _ = _cct_grid(rows, contingencies, [baseline[law] for law, _ in columns])
+    gain = (grid - base) * 1e3
+    order = np.argsort(np.nan_to_num(gain[:, 0], nan=np.inf), kind="stable")
+    fig = _screen_figure(len(contingencies))
+    ax = fig.subplots()
+    height = 0.8 / len(columns)
+    for j, (law, b) in enumerate(columns):
+        y = np.arange(len(contingencies)) + (j - (len(columns) - 1) / 2) * height
+        bars = ax.barh(y, gain[order, j], height=height, color=colour_hex(b), label=f"{limit_words(b)}, {law}")
+        for bar, lower_bound in zip(bars, open_top[order, j]):
+            if lower_bound:
+                bar.set_hatch("///")
+    ax.axvline(0.0, color="black", lw=0.8)
+    ax.invert_yaxis()
+    _label_contingencies(ax, [contingencies[k] for k in order], "smallest gain")
+    ax.set_xlabel("CCT gain over no battery (ms); hatched: at least this (the CCT reached the search's upper end)")
+    ax.legend(loc="lower right", fontsize=8)
+    ax.grid(True, axis="x", alpha=0.3)
+    fig.suptitle(title, fontsize=10, wrap=True)
+    save_png(fig, path)

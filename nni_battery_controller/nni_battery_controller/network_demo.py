@@ -43,7 +43,6 @@ from nni_battery_controller.demo_common import (
     logger_counts,
     plant_summary,
     run_environment,
-    software_version,
     start_when_read_back,
     wait_for_recorder,
     write_summary,
@@ -81,6 +80,7 @@ from nni_battery_controller.network_deployment import (
 from nni_battery_controller.network_sim import ANGLE_REFERENCES, assess_network
 from nni_battery_controller.options import add_network_law_options, network_laws_of
 from nni_battery_controller.recorded_runs import network_trajectory
+from nni_battery_controller.study_common import software_version
 from nni_msgs_adapter.recording.runs import read_generator_runs
 from nni_msgs_adapter.c37118.cli import summary_line
 from nni_msgs_adapter.ros import contract

@@ -8,13 +8,17 @@ per run with per-generator verdicts, writes JSON and a figure; ``--cct`` finds
 the critical clearing time of the bus fault per b instead, ``--delay-margin``
 the largest fixed measurement-to-command delay that keeps the network in
 synchronism. The runs take a communication link (``--link-*``, the same at
-every generator, the draws its own per generator).
+every generator, the draws its own per generator). ``--screen`` screens every
+contingency of the case instead (:mod:`nni_battery_controller.screen_study`).
 """
 
 from __future__ import annotations
 
+import argparse
 import time
+from pathlib import Path
 
+from nni_battery_controller import screen_study
 from nni_battery_controller.figures import plot_network
 from nni_battery_controller.margins import DELAY_MARGIN_TOLERANCE_S, DELAY_SCAN_STEP_S, delay_margins
 from nni_battery_controller.network_common import (
@@ -47,6 +51,7 @@ from nni_msgs_adapter.ros.cli_support import (
     battery_limit,
     float_within,
     positive_float,
+    positive_int,
     run_cli,
     writable_output,
     write_json,
@@ -86,10 +91,48 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--json", type=writable_output, help="write the results as JSON here")
     parser.add_argument("--plot", type=writable_output, help="write angles, frequencies, battery powers as PNG")
     add_link_options(parser)
+    screen = parser.add_argument_group(
+        "--screen: every contingency of the case, its critical clearing time per b and law (bisection as --cct; "
+        "--clearing-time is then the clearing time of each row's verdict, default 0.1 s)")
+    screen.add_argument("--screen", action="store_true",
+                        help="screen the case's contingencies instead of runs (docs/screening.md)")
+    screen.add_argument("--contingencies", nargs="+", metavar="WHAT",
+                        help="bus, line (both, by default), and/or contingencies by name: bus:B, line:F-T[:C]@E "
+                             "(E the faulted end; comma-separated or several words)")
+    screen.add_argument("--contingency-file", type=Path, metavar="FILE",
+                        help="contingencies to screen, one name a line as --contingencies takes them (# comments)")
+    screen.add_argument("--laws", nargs="+", metavar="LAW", help="the battery laws screened (default: nni)")
+    screen.add_argument("--workers", type=_workers, metavar="N",
+                        help="worker processes of the LocalCluster started here (default: one per core); 0: no "
+                             "cluster, every task in this process (the serial path)")
+    screen.add_argument("--scheduler", metavar="ADDRESS",
+                        help="run on the Dask cluster of this scheduler (tcp://HOST:8786) instead of a LocalCluster")
+    screen.add_argument("--out", type=Path, metavar="DIR",
+                        help="write each finished task's rows here as it ends (Parquet), the manifest, the heat "
+                             "map and the gain chart; an empty or new folder")
+    screen.add_argument("--resume", action="store_true",
+                        help="continue the screen in --out: compute only the contingencies not written there")
+    screen.add_argument("--weakest", type=positive_int, metavar="N",
+                        help=f"rows per b and law in the table of weakest contingencies (default "
+                             f"{screen_study.DEFAULT_WEAKEST})")
+    screen.add_argument("--chunk", type=positive_int, metavar="N",
+                        help="contingencies per task (default 1: each task is every b and law of one contingency)")
     return parser
 
 
+def _workers(text: str) -> int:
+    """argparse type: a worker count, 0 (the serial path) to 512."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 512:
+        raise argparse.ArgumentTypeError(f"expected a worker count 0..512, got {text!r}")
+    return value
+
+
 def _refuse_foreign_options(args) -> None:
+    screen_study.refuse_screen_options(args)
     refuse_foreign_scenario_options(args)
     if args.cct and args.scenario != "bus_fault":
         raise CliError("--cct applies to --scenario bus_fault only")
@@ -109,6 +152,8 @@ def main(argv=None) -> int:
     def body():
         args = parser.parse_args(argv)
         _refuse_foreign_options(args)
+        if args.screen:
+            return screen_study.run_screen(args)
         started = time.perf_counter()
         net = load_network(args.case, args.machines, args.f0)
         scenario, description, factory = make_scenario(net, args)

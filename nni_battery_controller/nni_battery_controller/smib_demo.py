@@ -46,7 +46,6 @@ from nni_battery_controller.demo_common import (
     logger_counts,
     plant_summary,
     run_environment,
-    software_version,
     start_when_read_back,
     wait_for_recorder,
     write_summary,
@@ -64,6 +63,7 @@ from nni_battery_controller.options import PAPER_BATTERY_LIMITS, add_model_optio
 from nni_battery_controller.recorded_runs import sampled_trajectory
 from nni_battery_controller.simulate import Trajectory
 from nni_battery_controller.verdicts import assess, verdict_text
+from nni_battery_controller.study_common import software_version
 from nni_msgs_adapter.c37118.cli import summary_line
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.cli_support import (

@@ -2,10 +2,12 @@
 
 The delay margin search's options (the span and step of its scan, and the
 options it refuses beside it), the lines above its table and its rows; the
-``link`` entry of a JSON summary. Pure python: no ROS import.
+``link`` entry of a JSON summary; the project's version. Pure python: no ROS import.
 """
 
 from __future__ import annotations
+
+from importlib import metadata
 
 from nni_battery_controller.margins import DELAY_MARGIN_TOLERANCE_S, DELAY_SCAN_STEP_S
 from nni_msgs_adapter.ros.cli_support import CliError
@@ -67,3 +69,11 @@ def link_json(link: Link, delay_searched: bool = False) -> dict:
     if delay_searched:
         return {"link": link.to_json() | {"delay_s": "searched"}}
     return {"link": link.to_json()} if link.active else {}
+
+
+def software_version() -> str:
+    """Version of the installed nni_battery_controller package."""
+    try:
+        return metadata.version("nni_battery_controller")
+    except metadata.PackageNotFoundError:
+        return "unknown"

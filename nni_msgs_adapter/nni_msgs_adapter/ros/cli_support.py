@@ -57,6 +57,17 @@ def positive_float(text: str) -> float:
     return _finite(text, lambda value: value > 0, "a finite number > 0")
 
 
+def positive_int(text: str) -> int:
+    """argparse type for an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
+
+
 def finite_float(text: str) -> float:
     """argparse type for any finite number."""
     return _finite(text, lambda value: True, "a finite number")

@@ -13,6 +13,10 @@ Shipped:
 - ``kundur_ring_52``: synthetic, 52 generators: 13 copies of ``kundur_two_area``
   tied in a ring (:mod:`.replicated` says how); its machine file is the
   two-area system's, replicated; 60 Hz.
+- ``ieee118``, ``ieee300``: MATPOWER's case118 and case300 from pypower (54 and
+  69 generators) with ``ieee118_machines.csv`` / ``ieee300_machines.csv``:
+  typical classical-machine data from a documented rule (:mod:`.typical`), not
+  the utility's; 60 Hz.
 
 Pure python: no ROS import.
 """
@@ -20,6 +24,7 @@ Pure python: no ROS import.
 from __future__ import annotations
 
 import csv
+import hashlib
 import math
 import re
 from importlib import resources
@@ -36,10 +41,12 @@ CASES = {
     "kundur_two_area": ("kundur_two_area.m", "kundur_two_area_machines.csv", 60.0),
     "ieee39": ("pypower:case39", "ieee39_machines.csv", 60.0),
     "kundur_ring_52": ("kundur_ring:13", "kundur_two_area_machines.csv", 60.0),
+    "ieee118": ("pypower:case118", "ieee118_machines.csv", 60.0),
+    "ieee300": ("pypower:case300", "ieee300_machines.csv", 60.0),
 }
 #: Fault bus of a bus fault when none is given: a load bus of each shipped case (kundur_ring_52: copy 0's bus 7,
 #: as the network plant node's default).
-DEFAULT_FAULT_BUS = {"kundur_two_area": 7, "ieee39": 16, "kundur_ring_52": 7}
+DEFAULT_FAULT_BUS = {"kundur_two_area": 7, "ieee39": 16, "kundur_ring_52": 7, "ieee118": 30, "ieee300": 9}
 
 _MATRIX = re.compile(r"mpc\.(bus|gen|branch)\s*=\s*\[(.*?)\]\s*;", re.S)
 _BASE = re.compile(r"mpc\.baseMVA\s*=\s*([0-9.eE+-]+)\s*;")
@@ -95,10 +102,11 @@ def shipped_text(filename: str) -> str:
     return resources.files(__name__).joinpath(filename).read_text(encoding="utf-8")
 
 
-def load_network(case: str, machines_path: str | None = None, f0_hz: float | None = None) -> Network:
-    """A shipped case by name, or a MATPOWER ``.m`` file with a machine CSV, solved and reduced.
+def case_data(case: str, machines_path: str | None = None, f0_hz: float | None = None) -> tuple:
+    """``(ppc, machines, f0_hz)`` of a shipped case by name, or of a MATPOWER ``.m`` file with a machine CSV.
 
-    Raises ValueError with one line on a missing or malformed file.
+    What :func:`load_network` solves and reduces, and what :func:`case_digest`
+    hashes. Raises ValueError with one line on a missing or malformed file.
     """
     if case in CASES:
         source, machines_file, default_f0 = CASES[case]
@@ -113,7 +121,7 @@ def load_network(case: str, machines_path: str | None = None, f0_hz: float | Non
                                            int(source.split(":", 1)[1]))
         else:
             ppc = read_matpower(shipped_text(source))
-        return network_from_case(ppc, machines, default_f0 if f0_hz is None else f0_hz)
+        return ppc, machines, default_f0 if f0_hz is None else f0_hz
     path = Path(case)
     if not path.is_file():
         raise ValueError(f"case {case!r} is neither a shipped case ({', '.join(CASES)}) nor a MATPOWER file")
@@ -121,5 +129,30 @@ def load_network(case: str, machines_path: str | None = None, f0_hz: float | Non
         raise ValueError("a MATPOWER case file needs its machine data: --machines FILE.csv")
     if f0_hz is None:
         raise ValueError("a MATPOWER case file needs its nominal frequency: --f0 HZ")
-    return network_from_case(read_matpower(path.read_text(encoding="utf-8")),
-                             read_machines(Path(machines_path).read_text(encoding="utf-8")), f0_hz)
+    return (read_matpower(path.read_text(encoding="utf-8")),
+            read_machines(Path(machines_path).read_text(encoding="utf-8")), f0_hz)
+
+
+def load_network(case: str, machines_path: str | None = None, f0_hz: float | None = None) -> Network:
+    """A shipped case by name, or a MATPOWER ``.m`` file with a machine CSV, solved and reduced.
+
+    Raises ValueError with one line on a missing or malformed file.
+    """
+    return network_from_case(*case_data(case, machines_path, f0_hz))
+
+
+def case_digest(ppc: dict, machines, f0_hz: float) -> str:
+    """SHA-256 (hex) of what a case is made of: its base, bus, gen and branch tables, machine records and f0.
+
+    Two cases with the same digest give the same network; a screen's output
+    folder records it so that ``--resume`` refuses another case's folder.
+    """
+    digest = hashlib.sha256()
+    digest.update(repr(float(ppc["baseMVA"])).encode())
+    for name in ("bus", "gen", "branch"):
+        digest.update(name.encode())
+        digest.update(np.ascontiguousarray(ppc[name], dtype=float).tobytes())
+    for machine in machines:
+        digest.update(repr(machine).encode())
+    digest.update(repr(float(f0_hz)).encode())
+    return digest.hexdigest()
