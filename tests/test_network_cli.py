@@ -48,7 +48,7 @@ def test_kundur_fault_run_prints_per_generator_verdicts_and_writes_json_and_figu
     assert max(g["max_abs_battery_power_pu"] for g in with_battery) == pytest.approx(0.3)
     assert max(g["max_abs_battery_power_mw"] for g in with_battery) == pytest.approx(270.0)  # 0.3 of 900 MVA
     assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert png_title(out_png) == "kundur_two_area: bus fault at bus 7 (Z = 0+0j pu), cleared at 0.1 s; controller 50 Hz"
+    assert png_title(out_png) == "kundur_two_area: bus fault at bus 7 (Z = 0+0j pu), cleared at 0.1 s; controller 50 Hz, law nni (tau_s 0.1, gain_k 1, gain_l 1.1, alpha 1)"
 
 
 def test_cct_finds_a_bracket_of_one_millisecond(tmp_path):

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from nni_msgs_adapter.ros.defaults import controller_defaults
+
 from nni_battery_controller.network_sim import NetworkLaw, simulate_network
 from nni_battery_controller.screening import (
     CaseSpec,
@@ -64,12 +66,14 @@ def test_a_contingency_the_case_does_not_have_is_refused_naming_it(kundur, text,
     assert words in str(error.value)
 
 
-def test_the_law_dimension_builds_nni_and_refuses_any_other_law_in_one_place(kundur):
+def test_the_law_dimension_builds_every_law_and_refuses_an_unknown_one_in_one_place(kundur):
     settings = ScreenSettings(limits_pu=(0.0,), laws=("nni",))
     law = screen_law("nni", kundur, settings)
-    assert isinstance(law, NetworkLaw) and law.reference == "pmu"
-    with pytest.raises(ValueError, match="law 'droop' cannot be screened in this build"):
-        screen_law("droop", kundur, settings)
+    assert isinstance(law, NetworkLaw) and law.reference == "pmu" and law.name == "nni"
+    droop = screen_law("droop", kundur, settings)
+    assert droop.name == "droop" and droop.gains.k_f == controller_defaults()["droop_k_f"]
+    with pytest.raises(ValueError, match="unknown law 'bogus'"):
+        screen_law("bogus", kundur, settings)
 
 
 def test_a_case_digest_names_its_data():
