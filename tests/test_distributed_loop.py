@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from nni_battery_controller.law import ControllerParams
+from nni_battery_controller.laws import LAW_NAMES, law_from_parameters
 from nni_battery_controller.simulate import simulate_sampled
+from nni_msgs_adapter.ros.defaults import controller_defaults
 from nni_msgs_adapter.ros import contract
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
@@ -25,16 +27,16 @@ RECORDED = (contract.TOPIC_PLANT_STATE, contract.TOPIC_CONTROLLER_STATE, contrac
 
 
 def run_loop(tmp_path, mode: str, b: float, duration_s: float, rate_hz: float = 50.0, timeout_s: float = 60.0,
-             plant_params: dict | None = None):
+             plant_params: dict | None = None, law: str = "nni"):
     """Run plant + controller to the end of ``duration_s``; return the probe's recordings.
 
-    ``plant_params``: more plant node parameters (the link's).
+    ``plant_params``: more plant node parameters (the link's); ``law``: the controller's.
     """
     domain = fresh_domain_id()
     probe = Probe(domain, RECORDED)
     try:
         with node_processes(tmp_path, domain) as start:
-            start("controller", CONTROLLER, {"battery_limit_pu": b, "sample_rate_hz": rate_hz})
+            start("controller", CONTROLLER, {"battery_limit_pu": b, "sample_rate_hz": rate_hz, "law": law})
             # The plant waits for its pmu subscribers, not for the probe's match with the controller's
             # publishers: under load that came after a lockstep run had ended (0 controller states).
             assert probe.wait_for_publishers(contract.TOPIC_CONTROLLER_STATE, 1, 30.0), "no controller"
@@ -60,18 +62,24 @@ def states_array(messages) -> np.ndarray:
 
 
 @pytest.mark.smoke
-def test_lockstep_equals_offline_sampled_simulation(tmp_path):
-    """Lockstep over DDS reproduces simulate_sampled at the same rate.
+@pytest.mark.parametrize("law", LAW_NAMES)
+def test_lockstep_equals_offline_sampled_simulation(tmp_path, law):
+    """Lockstep over DDS reproduces simulate_sampled at the same rate, for every law.
 
-    Same advance() call, same SampledController.step(), float64 carried exactly
+    Same advance() call, same SampledLaw.step(), float64 carried exactly
     by CDR: the only possible difference is the order of floating-point
     operations, so the tolerance is a few ulps of the state's magnitude (1e-12
-    absolute).
+    absolute). The default law runs the paper's 10 s, the others 4 s.
     """
-    b, duration, rate = 0.3, 10.0, 50.0
-    recorded, _ = run_loop(tmp_path, "lockstep", b, duration, rate)
+    b, duration, rate = 0.3, 10.0 if law == "nni" else 4.0, 50.0
+    recorded, _ = run_loop(tmp_path, "lockstep", b, duration, rate, law=law)
     states = states_array(recorded[contract.TOPIC_PLANT_STATE])
-    offline = simulate_sampled(SmibParams(), ControllerParams(battery_limit_pu=b), InitialAngle(), duration, rate)
+    defaults = controller_defaults()
+    offline = simulate_sampled(SmibParams(), ControllerParams(battery_limit_pu=b), InitialAngle(), duration, rate,
+                               law=law_from_parameters(law, defaults, ControllerParams(battery_limit_pu=b)))
+    if law != "nni":  # the law ran changes the run: this is not the nni law's trajectory
+        nni = simulate_sampled(SmibParams(), ControllerParams(battery_limit_pu=b), InitialAngle(), duration, rate)
+        assert np.max(np.abs(nni.delta_rad - offline.delta_rad)) > 1e-3
     assert states.shape[0] == offline.t_s.size, "one plant state per sample, t_0 .. t_n"
     np.testing.assert_allclose(states[:, 0], offline.t_s, rtol=0, atol=1e-9)
     np.testing.assert_allclose(states[:, 1], offline.delta_rad, rtol=0, atol=1e-12)
