@@ -142,3 +142,32 @@ def test_nni_simulate_names_the_law_it_ran_and_droop_differs_from_nni():
         assert f"law {name}:" in done.stdout
         outputs[name] = done.stdout.splitlines()[-2]
     assert outputs["nni"] != outputs["droop"]
+
+
+def test_compare_laws_prints_every_law_per_b_and_writes_json_and_figure(tmp_path):
+    from test_verdicts_options import png_title
+
+    out_json, out_png = tmp_path / "cmp.json", tmp_path / "cmp.png"
+    done = subprocess.run([sys.executable, "-m", "nni_battery_controller.simulate_command", "--compare-laws",
+                           "--b", "0", "0.3", "--duration", "4", "--json", str(out_json), "--plot", str(out_png)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    rows = [line.split() for line in done.stdout.splitlines() if line[:8].strip() in ("0", "0.3")]
+    assert [(r[0], r[1]) for r in rows] == [(b, name) for b in ("0", "0.3") for name in LAW_NAMES]
+    data = __import__("json").loads(out_json.read_text())
+    assert {(row["law"], row["b"]) for row in data["rows"]} == {(n, b) for n in LAW_NAMES for b in (0.0, 0.3)}
+    no_battery = [row for row in data["rows"] if row["b"] == 0.0]
+    assert len({row["cct_s"] for row in no_battery}) == 1 and all(row["energy_pu_s"] == 0 for row in no_battery)
+    assert all(row["time_saturated_s"] is None for row in no_battery)
+    assert set(data["rows"][0]) >= {"verdict", "settling_time_s", "energy_pu_s", "energy_mwh_per_100mva",
+                                    "time_saturated_s", "cct_s", "cct_slips_s", "gains"}
+    assert png_title(out_png) == "Critical clearing time per battery law, SMIB, sampled at 50 Hz"
+
+
+def test_compare_laws_refuses_what_does_not_apply():
+    for argv, message in ((["--compare-laws", "--law", "droop"], "it takes no --law"),
+                          (["--compare-laws", "--cct"], "it takes no --cct"),
+                          (["--compare-laws", "--controller-rate", "continuous"], "no --controller-rate continuous")):
+        done = subprocess.run([sys.executable, "-m", "nni_battery_controller.simulate_command", *argv],
+                              capture_output=True, text=True, timeout=60)
+        assert done.returncode == 2 and message in done.stderr, done.stderr

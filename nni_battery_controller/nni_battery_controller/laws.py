@@ -68,7 +68,7 @@ def _non_negative(owner, *names) -> None:
 class DroopGains:
     """Fast frequency response: ``v = -k_f dw`` (k_f: pu power per pu frequency, the machine's rating).
 
-    The default is the tuned one (docs/laws.md, "Tuning").
+    The defaults of every speed law here are typical starting values, not yet tuned (docs/laws.md).
     """
 
     k_f: float = 100.0

@@ -27,6 +27,8 @@ import sys
 import time
 
 from nni_battery_controller.figures import plot_runs, roa_figure, save_png
+from nni_battery_controller.law_comparison import MWH_PER_PU_S_100MVA, compare, comparison_figure, format_rows
+from nni_battery_controller.laws import LAW_NAMES
 from nni_battery_controller.margins import (
     CCT_TOLERANCE_S,
     DELAY_MARGIN_TOLERANCE_S,
@@ -126,6 +128,10 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--cct", action="store_true",
                         help="instead of one run per b: the critical clearing time of the transfer_limit_fault per b, "
                              "by bisection to 1 ms (in synchronism over --duration), printed and in --json as cct_s")
+    parser.add_argument("--compare-laws", action="store_true",
+                        help="every battery law (nni, nni-unsaturated, droop, vsm, pss) per b, sampled at the PMU "
+                             "rate: verdict, settling, battery energy, time in saturation and the transfer-limit "
+                             "fault's CCT; a table, --json, --plot (CCT against b per law); docs/laws.md")
     parser.add_argument("--delay-margin", action="store_true",
                         help="instead of one run per b: the largest fixed measurement-to-command delay (the link's) "
                              "that keeps the sampled-data loop in synchronism over --duration, per b; a scan in "
@@ -325,6 +331,37 @@ def smib_cct(plant, law, fault_p_max: float, duration_s: float, rate_hz, link=NO
     return critical_clearing_time(in_sync, law.limit_pu, duration_s)
 
 
+def run_compare_laws(args, model, plant: SmibParams) -> int:
+    """``--compare-laws``: every law per b on the same plant, limit and rate; table, --json, --plot."""
+    rate = args.controller_rate
+    scenario = model.scenario()
+    laws_by_b = {b: [model.law(b, name) for name in LAW_NAMES] for b in args.b}
+    # Bounded per law as --cct is (the comparison is five of those).
+    check_work(plant, [model.controller_params(b) for b in args.b], args.duration, rate,
+               runs_per_b=2 * math.ceil(math.log2(args.duration / CCT_TOLERANCE_S)) + 3)
+    fault_p_max = model.plant["fault_p_max_pu"]
+    print(f"Battery laws compared, SMIB, {model.header().split('; law ')[0]}")
+    print(f"every law sampled at {rate:g} Hz, {args.duration:g} s; CCT: the transfer_limit_fault (P_max = "
+          f"{fault_p_max:g} pu during it), bisection to {CCT_TOLERANCE_S * 1e3:g} ms; energy: integral of |P_ST| dt")
+    for name in LAW_NAMES:
+        print(f"  {laws_by_b[args.b[0]][LAW_NAMES.index(name)].describe()}")
+    rows = compare(laws_by_b, lambda law: (simulate(plant, law, scenario, args.duration, rate), scenario),
+                   lambda law: smib_cct(plant, law, fault_p_max, args.duration, rate))
+    print(format_rows(rows))
+    print(f"energy in MWh: pu s x {MWH_PER_PU_S_100MVA:.5f} per 100 MVA of rating; saturated: the output at +-b")
+    if args.json:
+        write_json(args.json, {"scenario": model.scenario_values(), "controller": controller_text(rate),
+                               "duration_s": args.duration, "cct_scenario": {"name": "transfer_limit_fault",
+                                                                             "fault_p_max_pu": fault_p_max},
+                               "tolerance_s": CCT_TOLERANCE_S, "rows": rows})
+        print(f"wrote {args.json}")
+    if args.plot:
+        save_png(comparison_figure(rows, f"Critical clearing time per battery law, SMIB, sampled at {rate:g} Hz"),
+                 args.plot)
+        print(f"wrote {args.plot}")
+    return 0
+
+
 def permanent_step_note(model, plant: SmibParams) -> str:
     """What a permanent mechanical power step does, with the new equilibrium angles in closed form."""
     step, c = model.plant["step_p_mech_pu"], model.controller
@@ -446,6 +483,14 @@ def main(argv=None) -> int:
         try:
             args = parser.parse_args(argv)
             apply_mode_defaults(args)
+            if args.compare_laws:
+                for flag in ("cct", "roa", "delay_margin", "law"):
+                    if getattr(args, flag):
+                        raise CliError(f"--compare-laws runs every law: it takes no --{flag.replace('_', '-')}")
+                if args.continuous_given or given_link_options(args):
+                    raise CliError("--compare-laws runs every law sampled at the PMU rate without a link: it takes "
+                                   "no --controller-rate continuous and no --link-* option")
+                args.laws_compared = LAW_NAMES
             if args.cct:
                 if args.roa or args.plot:
                     raise CliError("--cct prints and writes --json only: it takes neither --roa nor --plot")
@@ -456,7 +501,7 @@ def main(argv=None) -> int:
             model = resolve_model(args, parser.prog)
             plant = model.smib()
             model.validate()
-            if model.law_name != "nni":
+            if model.law_name != "nni" or args.compare_laws:
                 if args.roa or args.continuous_given:
                     raise CliError(f"--law {model.law_name} runs sampled at the PMU rate: "
                                    + ("--roa sweeps the continuous nni law; --compare-laws sweeps every law's "
@@ -468,6 +513,8 @@ def main(argv=None) -> int:
                 status = run_roa(args, model, plant)
             elif args.delay_margin:
                 status = run_delay_margin(args, model, plant)
+            elif args.compare_laws:
+                status = run_compare_laws(args, model, plant)
             elif args.cct:
                 status = run_cct(args, model, plant)
             else:
