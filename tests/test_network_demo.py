@@ -22,6 +22,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from nni_msgs_adapter.ros.defaults import controller_defaults
+
 from nni_battery_controller.demo_common import start_when_read_back
 from nni_battery_controller.network_common import format_run
 from nni_battery_controller.network_deployment import controller_parameters, default_law, generator_limits
@@ -414,6 +416,18 @@ def test_the_launch_file_creates_one_controller_per_generator_of_the_case(networ
         module = importlib.import_module(console_script_module(node["executable"]))
         declared = {spec.name for spec in module.parameters()}
         assert set(node["parameters"]) <= declared, (node["executable"], set(node["parameters"]) - declared)
+
+
+def test_the_launch_file_runs_the_law_asked_for_with_its_gains(network_launch):
+    nodes = network_launch.network_nodes({"case": "kundur_two_area", "law": "vsm"})
+    defaults = controller_defaults()
+    for node in nodes[1:-1]:
+        params = node["parameters"]
+        assert params["law"] == "vsm" and params["f0_hz"] == 60.0
+        assert {k: params[k] for k in ("vsm_h_v_s", "vsm_d_v", "vsm_t_f_s")} == {
+            k: defaults[k] for k in ("vsm_h_v_s", "vsm_d_v", "vsm_t_f_s")}
+    default = network_launch.network_nodes({"case": "kundur_two_area"})
+    assert {node["parameters"]["law"] for node in default[1:-1]} == {"nni"}
 
 
 def test_the_launch_file_feeds_the_controllers_through_c37118_on_request(network_launch):

@@ -52,7 +52,7 @@ PLANT_ARGUMENTS = (
     "step_duration_s", "fault_p_max_pu", "clearing_time_s", "damping_pu", "pmu_port", "pmu_host", "pmu_idcode",
 )
 #: Launch arguments that are controller parameters (package nni_battery_controller, config/controller.yaml).
-CONTROLLER_ARGUMENTS = ("tau_s", "gain_k", "gain_l", "alpha", "battery_limit_pu")
+CONTROLLER_ARGUMENTS = ("law", "tau_s", "gain_k", "gain_l", "alpha", "battery_limit_pu")
 #: Model parameters shared by the plant and the controller's model of it (the plant's defaults).
 MODEL_ARGUMENTS = ("p_mech_pu", "p_max_pu", "inertia_h_s", "f0_hz")
 #: Launch arguments that are logger parameters (package nni_msgs_adapter, config/mcap_logger.yaml).

@@ -55,6 +55,8 @@ from nni_battery_controller.network_deployment import (
     participants,
     plant_parameters,
 )
+from nni_battery_controller.law import ControllerParams
+from nni_battery_controller.laws import law_from_parameters
 from nni_battery_controller.network_sim import NetworkLaw
 from nni_msgs_adapter.ros.defaults import controller_defaults
 from nni_msgs_adapter.ros.processes import PARTICIPANTS_ENV
@@ -72,6 +74,8 @@ RUN_ARGUMENTS = {
     "pmu_rate_hz": ("50.0", "PMU reporting rate, frames/s (and the controllers' sampling rate)"),
     "battery_limit_pu": ("0.1", "every generator's battery limit b, pu of its rating (.inf: unlimited)"),
     "gen_b": ("", "per-generator limits instead, 'I=B ...' (I: 1.. as in /gen<I>)"),
+    "law": (None, "the battery law at every generator: nni, nni-unsaturated, droop, vsm or pss (a speed law with its "
+                  "gains from config/controller.yaml)"),
     "tau_s": (None, "tau, s, at every generator"),
     "gain_k": (None, "K, pu/rad, at every generator"),
     "gain_l": (None, "L, pu/rad, at every generator (K < L)"),
@@ -189,7 +193,10 @@ def network_nodes(given: dict) -> list[dict]:
     net = load_network(case)
     scenario = scenario_values(net, case, values)
     rate = float(_value(values["pmu_rate_hz"]))
-    law = NetworkLaw.uniform(net, *(float(_value(values[name])) for name in ("tau_s", "gain_k", "gain_l", "alpha")))
+    law_name = values["law"]
+    gains = law_from_parameters(law_name, controller_defaults(), ControllerParams()).gains
+    law = NetworkLaw.uniform(net, *(float(_value(values[name])) for name in ("tau_s", "gain_k", "gain_l", "alpha")),
+                             name=law_name, gains=gains)
     limits = battery_limits(net.size, float(_value(values["battery_limit_pu"])),
                             generator_limits(values["gen_b"].split(), net.size, "gen_b"))
     measurements, stream = values["measurements"], stream_values(values)
