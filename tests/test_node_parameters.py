@@ -26,6 +26,8 @@ NETWORK_PLANT = "nni_plant_sim.network_plant_node"
     # A misspelt choice ran silently as the default choice (restoring_power as model, reference as pmu).
     (CONTROLLER, {"restoring_power": "measurd"}, "restoring_power must be one of model, measured, got 'measurd'"),
     (CONTROLLER, {"reference": "centre"}, "reference must be one of pmu, coi, got 'centre'"),
+    (CONTROLLER, {"law": "bangbang"}, "law must be one of nni, nni-unsaturated, droop, vsm, pss, got 'bangbang'"),
+    (CONTROLLER, {"law": "vsm", "vsm_t_f_s": 0.0}, "vsm_t_f_s out of range"),
 ])
 def test_invalid_start_up_values_stop_the_node_with_one_line(tmp_path, module, params, reason):
     with node_processes(tmp_path, fresh_domain_id()) as start:
@@ -152,8 +154,9 @@ def test_no_process_changes_a_nodes_safety_parameters_from_the_start(tmp_path):
 
     domain = fresh_domain_id()
     attempts = {
-        "controller": [("battery_limit_pu", 100.0), ("p_mech_pu", 0.0), ("gain_k", 0.9), ("allow_tuning", True)],
-        "gen2/controller": [("battery_limit_pu", 100.0), ("tau_s", 1.0)],
+        "controller": [("battery_limit_pu", 100.0), ("p_mech_pu", 0.0), ("gain_k", 0.9), ("allow_tuning", True),
+                       ("law", "droop"), ("droop_k_f", 1e4)],
+        "gen2/controller": [("battery_limit_pu", 100.0), ("tau_s", 1.0), ("law", "pss")],
         "composed_controllers": [("namespaces", ["/gen9"])],
         "plant": [("battery_rating_pu", 100.0), ("noise_angle_std_rad", 1.0), ("use_sim_time", True)],
         "network_plant": [("noise_angle_std_rad", 1.0), ("battery_ratings_pu", [100.0] * 4)],
