@@ -25,8 +25,8 @@ REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("nni_plant_sim", "nni_battery_controller", "nni_msgs_adapter")
 EXECUTABLES = {
     "nni_plant_sim": ("plant_node",),
-    "nni_battery_controller": ("controller_node", "nni-simulate", "nni-demo"),
-    "nni_msgs_adapter": ("mcap_logger", "replay", "nni-replay"),
+    "nni_battery_controller": ("controller_node", "nni-simulate", "nni-demo", "replay", "nni-replay"),
+    "nni_msgs_adapter": ("mcap_logger",),
 }
 
 

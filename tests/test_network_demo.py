@@ -364,7 +364,7 @@ def test_per_generator_limits_and_the_model_check_of_a_machine_at_full_power():
             generator_limits(words, 4)
     # A machine at (or above) the controller's default P_max (1 pu): in measured mode the node has no SMIB model to refuse it.
     net = SimpleNamespace(mbase_mva=np.array([500.0]), base_mva=100.0, p_mech_pu=np.array([5.5]),
-                          delta_bar_rad=np.array([0.4]), names=("G1",))
+                          delta_bar_rad=np.array([0.4]), names=("G1",), f0_hz=60.0)
     law = NetworkLaw(net, np.array([0.1]), np.array([1.0]), np.array([1.1]), np.array([1.0]))
     params = controller_parameters(net, 0, 0.1, 50.0, law)
     assert params["p_mech_pu"] == pytest.approx(1.1) and "p_max_pu" not in params
