@@ -131,7 +131,7 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--compare-laws", action="store_true",
                         help="every battery law (nni, nni-unsaturated, droop, vsm, pss) per b, sampled at the PMU "
                              "rate: verdict, settling, battery energy, time in saturation and the transfer-limit "
-                             "fault's CCT; a table, --json, --plot (CCT against b per law); docs/laws.md")
+                             "fault's CCT; a table, --json, --plot (CCT against b per law); docs/laws.md (default: off)")
     parser.add_argument("--delay-margin", action="store_true",
                         help="instead of one run per b: the largest fixed measurement-to-command delay (the link's) "
                              "that keeps the sampled-data loop in synchronism over --duration, per b; a scan in "
