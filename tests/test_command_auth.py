@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import stat
 
 import pytest
@@ -71,3 +73,19 @@ def test_a_key_file_others_can_read_or_of_another_length_is_refused(tmp_path):
         command_auth.read_key(tmp_path / "missing.key")
     with pytest.raises(command_auth.KeyFileError, match="not a regular file"):
         command_auth.read_key(tmp_path)
+
+
+def test_a_killed_runs_key_folder_is_removed_at_the_next_start_and_a_running_ones_is_kept(tmp_path, monkeypatch):
+    monkeypatch.setattr(command_auth.tempfile, "tempdir", str(tmp_path))
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    dead = tmp_path / f"{command_auth.KEY_FOLDER_PREFIX}{int(gone.stdout)}-abc"
+    dead.mkdir(mode=0o700)
+    (dead / "command.key").write_bytes(KEY)
+    alive = tmp_path / f"{command_auth.KEY_FOLDER_PREFIX}{os.getppid()}-def"
+    alive.mkdir(mode=0o700)
+    path = command_auth.new_key_file()
+    try:
+        assert not dead.exists() and alive.exists()
+        assert path.parent.name.startswith(f"{command_auth.KEY_FOLDER_PREFIX}{os.getpid()}-")
+    finally:
+        command_auth.remove_key_file(path)

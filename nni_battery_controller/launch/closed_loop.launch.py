@@ -115,7 +115,7 @@ def generate_launch_description():
         values["pmu_host"] = context.launch_configurations["pmu_host"]  # an address, text whatever YAML makes of it
         given = launched_nodes(values)
         namespace = context.launch_configurations["namespace"]
-        key_env, remove_key = run_key_environment()  # the plant's and the controller's, not the logger's
+        key_env, remove_key = run_key_environment()  # every node's: each seals what it sends, checks what it reads
         plant = Node(package="nni_plant_sim", executable="plant_node", name="plant", namespace=namespace,
                      ros_arguments=["--enclave", "/nni/plant"], parameters=[config_file("plant"), given["plant"]],
                      additional_env=key_env)
@@ -124,14 +124,16 @@ def generate_launch_description():
                           parameters=[config_file("controller"), given["controller"]], additional_env=key_env)
         logger = Node(package="nni_msgs_adapter", executable="mcap_logger", name="mcap_logger", namespace=namespace,
                       ros_arguments=["--enclave", "/nni/mcap_logger"],
-                      parameters=[config_file("mcap_logger"), given["mcap_logger"]])
+                      parameters=[config_file("mcap_logger"), given["mcap_logger"]], additional_env=key_env)
         client = [Node(package="nni_msgs_adapter", executable="c37118_client", name="c37118_client",
                        namespace=namespace, ros_arguments=["--enclave", "/nni/c37118_client"],
-                       parameters=[given["c37118_client"]])] if "c37118_client" in given else []
+                       parameters=[given["c37118_client"]], additional_env=key_env)] if "c37118_client" in given else []
         prefix = "/".join(("", *filter(None, (namespace.strip("/"),))))
         started = [(controller, {f"{prefix}/controller": expected_parameters(controller_node_parameters(),
                                                                               given["controller"])}),
-                   (plant, {f"{prefix}/plant": expected_parameters(plant_node_parameters(), given["plant"])})]
+                   (plant, {f"{prefix}/plant": expected_parameters(plant_node_parameters(), given["plant"])}),
+                   # stated, nothing to compare: they have read the run's key, removed once every node has
+                   (logger, {f"{prefix}/mcap_logger": {}}), *((node, {f"{prefix}/c37118_client": {}}) for node in client)]
         # The plant runs once both nodes stated what they were given; the run is over when it exits
         # (duration_s > 0): stop the others, finish the recording.
         return [*remove_key, *readback_release(started, plant, key_env), logger, controller, *client, plant,

@@ -222,11 +222,12 @@ def network_nodes(given: dict) -> list[dict]:
 
 def readbacks(nodes: list[dict]) -> list[dict]:
     """Per node of :func:`network_nodes`: ``{its fully qualified name: the parameters it must state at start}``
-    (the plant and the controllers; ``{}`` for the logger, which holds nothing of the loop's safety)."""
+    (the plant and the controllers; nothing for the logger and the C37.118 client, which only have to have stated
+    theirs: read the run's key, removed once every node has)."""
     tables = {CONTROLLER[1]: controller_node_parameters(), PLANT[1]: plant_node_parameters()}
     return [{"/".join(("", *filter(None, (node["namespace"].strip("/"), node["name"])))):
-             expected_parameters(tables[node["executable"]], node["parameters"])}
-            if node["executable"] in tables else {} for node in nodes]
+             expected_parameters(tables[node["executable"]], node["parameters"]) if node["executable"] in tables
+             else {}} for node in nodes]
 
 
 def generate_launch_description():
@@ -240,11 +241,10 @@ def generate_launch_description():
 
     def setup(context):
         specs = network_nodes({name: context.launch_configurations[name] for name in table})
-        key_env, remove_key = run_key_environment()  # the plant's and the controllers' only
+        key_env, remove_key = run_key_environment()  # every node's: each seals what it sends, checks what it reads
         nodes = [Node(package=spec["package"], executable=spec["executable"], name=spec["name"],
                       namespace=spec["namespace"], parameters=[spec["parameters"]],
-                      additional_env={**spec["env"], **(key_env if spec["executable"] in (PLANT[1], CONTROLLER[1])
-                                                         else {})})
+                      additional_env={**spec["env"], **key_env})
                  for spec in specs]
         started = [(node, passed) for node, passed in zip(nodes, readbacks(specs)) if passed]
         # The plant (the last node) runs once every node stated what it was given; the run is over when it

@@ -68,6 +68,9 @@ def parameters() -> tuple[Spec, ...]:
              "centre of inertia, absolute namespaces (/gen1, ...), this controller's own among them.", array_of=str),
         Spec("coi_inertias", defaults["coi_inertias"], "reference coi: their inertias M_j in coi_namespaces' order "
              "(any one unit), > 0.", array_of=float),
+        Spec("authentication", defaults["authentication"], "hmac (default): every measurement, the plant's end of "
+             "run and every command sealed under the run's key (NNI_COMMAND_KEY_FILE, needed); none: nothing sealed, "
+             "for a plant with command_authentication none (docs/security.md).", choices=AUTHENTICATIONS),
         Spec("measurement_topic", defaults["measurement_topic"], "Where the measurements are read (relative, "
              "under each generator's namespace): pmu, the plant's own, or c37118/pmu, the same read from its "
              "IEEE C37.118 stream by the c37118_client node.", choices=MEASUREMENT_TOPICS),
@@ -96,7 +99,9 @@ def locked_when_active() -> tuple[str, ...]:
 
 
 #: Read at start only: they decide which pmu topics the node subscribes to.
-READ_AT_START = ("reference", "coi_namespaces", "coi_inertias", "measurement_topic")
+READ_AT_START = ("reference", "coi_namespaces", "coi_inertias", "measurement_topic", "authentication")
+#: What the controller's inputs and commands are sealed with: the run's key, or nothing.
+AUTHENTICATIONS = ("hmac", "none")
 #: The contract's two measurement topics, TOPIC_PMU and TOPIC_C37118_PMU (the contract imports rclpy, this module
 #: must not: tests/test_c37118_client_node.py checks that the names agree).
 MEASUREMENT_TOPICS = ("pmu", "c37118/pmu")
@@ -138,6 +143,7 @@ class ControllerConfig:
         #: The namespaces of the pmu topics read: the node's own ("") or, for coi, every listed generator's.
         self.pmu_namespaces = self.coi[0] if self.coi else ("",)
         self.measurement_topic = values["measurement_topic"]
+        self.authenticated = values["authentication"] == "hmac"
         self.period_s = 1.0 / values["sample_rate_hz"]
         self.stale_after_s = values["stale_after_periods"] * self.period_s
         #: InputGate's (gap_ns, tolerance_ns, reanchor_after).

@@ -82,6 +82,16 @@ class Answer(NamedTuple):
                 self.ctrl.battery_limit_pu)
 
 
+#: The counters of inputs that are not the plant's (authentication hmac): any non-zero one is an ERROR on the
+#: controller's diagnostics and makes the run compromised. ``unauthenticated_measurements``: a measurement whose seal
+#: is missing or does not verify under its topic's key; ``replayed_measurements``: one that verifies on a sequence
+#: already seen (captured and sent again); ``unauthenticated_statuses``: a claim that the plant's run ended that is
+#: not sealed by the plant; ``foreign_clock_writers``: more writers on ``/clock`` than the lockstep plant (one) or
+#: any in realtime (rosgraph_msgs/Clock has no field for a seal, so a tick cannot be attributed: the controller
+#: takes none of its time from /clock when it authenticates, and names the writers).
+TRUST_COUNTERS = ("unauthenticated_measurements", "replayed_measurements", "unauthenticated_statuses",
+                  "foreign_clock_writers")
+
 #: Stamps of the centre of inertia waiting for their samples at most (the oldest is given up beyond).
 MAX_PENDING_STAMPS = 4
 #: The counters of the coi reference, beside the gate's.
@@ -140,6 +150,8 @@ class ControllerCore:
         self.gate = InputGate(*config.gate_bounds)
         self.coi = None if config.coi is None else CentreOfInertia(*config.coi[1:])
         self._reported = {}  # the coi counters at the last status
+        #: Inputs that were not the plant's (:data:`TRUST_COUNTERS`), counted only with authentication hmac.
+        self.trust = dict.fromkeys(TRUST_COUNTERS, 0)
         #: The plant said its run has ended, and no measurement came since: the silence is no fault.
         self.run_ended = False
 
@@ -252,8 +264,13 @@ class ControllerCore:
         coi = {} if self.coi is None else dict(self.coi.counts)
         grew = [name for name, count in coi.items() if count > self._reported.get(name, 0)]
         self._reported = coi
-        level = "STALE" if self.gate.stale else "WARN" if grew else "OK"
-        message = "; ".join(([level] if level != "WARN" else []) + ([f"centre of inertia: {', '.join(grew)}"] if grew
-                                                                    else []))
-        return level, message, {"x3": self.law.x3, "battery_limit_pu": self.config.ctrl.battery_limit_pu,
-                                **self.gate.counts, **coi}
+        foreign = [f"{count} {name.replace('_', ' ')}" for name, count in self.trust.items() if count]
+        level = "ERROR" if foreign else "STALE" if self.gate.stale else "WARN" if grew else "OK"
+        message = "; ".join(([f"inputs not from the plant, dropped: {', '.join(foreign)}"] if foreign else [])
+                            + (["STALE"] if self.gate.stale and foreign else [])
+                            + ([level] if level in ("OK", "STALE") else [])
+                            + ([f"centre of inertia: {', '.join(grew)}"] if grew else []))
+        values = {"x3": self.law.x3, "battery_limit_pu": self.config.ctrl.battery_limit_pu, **self.gate.counts, **coi}
+        if self.config.authenticated:
+            values.update(self.trust)
+        return level, message, values

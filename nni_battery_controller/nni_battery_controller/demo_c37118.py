@@ -87,15 +87,16 @@ def client_parameters(port: int, mode: str, readers: int, namespaces=(), host: s
     return {**params, "namespaces": list(namespaces)} if namespaces else params
 
 
-def start_client(procs, where: str, measurements: str, mode: str, readers: int, namespaces=(), idcode: int = 1):
+def start_client(procs, where: str, measurements: str, mode: str, readers: int, namespaces=(), idcode: int = 1,
+                 env=None):
     """The client node, on the stream at ``where`` (``host:port`` as the plant says it listens; every interface
     read on loopback), in the plant's ``mode``; it connects once each station's topic has ``readers``
-    subscribers. None for measurements ``ros``."""
+    subscribers (``env``: its environment's additions, the run's key). None for measurements ``ros``."""
     if measurements != "c37118":
         return None
     host, port = profile.parse_server_address(where)
     return procs.start_node("c37118_client", CLIENT_MODULE,
-                            client_parameters(port, mode, readers, namespaces, client_host(host), idcode))
+                            client_parameters(port, mode, readers, namespaces, client_host(host), idcode), env=env)
 
 
 def wait_connected(client, label: str) -> None:

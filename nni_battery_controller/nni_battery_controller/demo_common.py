@@ -32,6 +32,7 @@ from nni_msgs_adapter.ros.command_auth import KEY_FILE_ENV, remove_key_file
 from nni_msgs_adapter.ros.processes import ChildError
 from nni_msgs_adapter.ros.readback import mismatch, stated_parameters
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
+from nni_battery_controller.controller_core import TRUST_COUNTERS as CONTROLLER_TRUST_COUNTERS
 from nni_plant_sim.reporting import COMPROMISING_KEYS
 
 #: Seconds the logger gets after the plant ends, for the last reliable messages to land.
@@ -45,7 +46,8 @@ READBACK_WAIT_S = 120.0
 
 
 def compromised_reasons(plant_summary: dict, run: GeneratorRun, b: float) -> dict:
-    """Why a run cannot be trusted (empty if it can): non-zero trust counters, or |P_ST| applied above b.
+    """Why a run cannot be trusted (empty if it can): non-zero trust counters (the plant's, and the controller's
+    in its last status recorded: inputs that were not its plant's), or |P_ST| applied above b.
 
     The largest power applied is the plant's own count where it reports one, and
     in any case the largest ``plant/state`` battery power in the recording.
@@ -54,6 +56,8 @@ def compromised_reasons(plant_summary: dict, run: GeneratorRun, b: float) -> dic
     if missing:
         raise CliError(f"the plant's final diagnostics lack {', '.join(missing)}: the run cannot be judged")
     reasons = {key: int(plant_summary[key]) for key in TRUST_COUNTERS if int(plant_summary[key])}
+    reasons.update({key: int(run.controller_diagnostics[key]) for key in CONTROLLER_TRUST_COUNTERS
+                    if int(run.controller_diagnostics.get(key, 0))})
     recorded = float(np.max(np.abs(run.battery_power_pu))) if run.battery_power_pu.size else 0.0
     applied = max(recorded, float(plant_summary["max_abs_applied_power_pu"]))
     if applied > b + 1e-12:
@@ -70,7 +74,8 @@ def compromised_words(b: float, reasons: dict) -> list[str]:
     words = []
     if "max_abs_applied_power_pu" in reasons:
         words.append(f"|P_ST| {reasons['max_abs_applied_power_pu']:.4f} pu applied, above b = {b:g} pu")
-    return words + [f"{reasons[key]} {key.replace('_', ' ')}" for key in TRUST_COUNTERS if key in reasons]
+    return words + [f"{reasons[key]} {key.replace('_', ' ')}" for key in (*TRUST_COUNTERS, *CONTROLLER_TRUST_COUNTERS)
+                    if key in reasons]
 
 
 def compromised_text(b: float, reasons: dict) -> str:
@@ -81,6 +86,12 @@ def compromised_text(b: float, reasons: dict) -> str:
 def key_environment(key_file) -> dict:
     """What the plant's and the controllers' processes get beside the run's environment: the run's key file."""
     return {KEY_FILE_ENV: str(key_file)}
+
+
+def stated_only(logger, client=None) -> list:
+    """The read-back entries of the run's logger and C37.118 client (None: none): nothing of theirs to compare, but
+    they have to have stated their parameters, so have read the run's key, before it is removed."""
+    return [(logger, {"/mcap_logger": {}}), *([(client, {"/c37118_client": {}})] if client is not None else [])]
 
 
 def start_when_read_back(started: list, plant, logs: Path, key_file=None) -> None:

@@ -44,6 +44,7 @@ from nni_battery_controller.demo_common import (
     plant_summary,
     run_environment,
     start_when_read_back,
+    stated_only,
     wait_for_recorder,
     write_summary,
 )
@@ -280,7 +281,7 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
     with run_key() as key, Supervisor(env, logs) as procs:
         logger = procs.start_node("mcap_logger", "nni_msgs_adapter.recording.mcap_logger", {
             "output_path": str(recording), "discovery_period_s": 0.1,
-            "run_metadata": json.dumps(run_metadata(args, plant_params, controllers))})
+            "run_metadata": json.dumps(run_metadata(args, plant_params, controllers))}, env=key_environment(key))
         started_controllers = start_controllers(procs, controllers, args.deployment, key_environment(key))
         # The plant holds its run until released: it starts beside the others, its release waits for the logger.
         plant = procs.start_node("network_plant", PLANT, plant_params, env=key_environment(key))
@@ -289,9 +290,10 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
         where = watch.listening() if watch is not None else None
         client = demo_c37118.start_client(procs, where, args.measurements, args.mode,
                                           pmu_readers(net, args.reference), [f"/{ns}" for ns in spaces],
-                                          args.pmu_idcode)
+                                          args.pmu_idcode, env=key_environment(key))
         start_when_read_back([*controller_readbacks(started_controllers, controllers, args.deployment),
-                              (plant, {"/network_plant": expected_parameters(plant_node_parameters(), plant_params)})],
+                              (plant, {"/network_plant": expected_parameters(plant_node_parameters(), plant_params)}),
+                              *stated_only(logger, client)],
                              plant, logs, key)
         demo_c37118.wait_connected(client, run_label(args, b))
         finish_plant(procs, plant, args, run_label(args, b), SUMMARY_PREFIX, watch)

@@ -47,6 +47,7 @@ from nni_battery_controller.demo_common import (
     plant_summary,
     run_environment,
     start_when_read_back,
+    stated_only,
     wait_for_recorder,
     write_summary,
 )
@@ -197,7 +198,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
     with run_key() as key, Supervisor(env, logs) as procs:
         logger = procs.start_node("mcap_logger", "nni_msgs_adapter.recording.mcap_logger", {
             "output_path": str(recording), "discovery_period_s": 0.1,
-            "run_metadata": json.dumps(run_metadata(args, plant_params, controller_params))})
+            "run_metadata": json.dumps(run_metadata(args, plant_params, controller_params))}, env=key_environment(key))
         controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params,
                                       env=key_environment(key))
         # The plant holds its run until released: it starts beside the others, its release waits for the logger.
@@ -205,10 +206,12 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
         wait_for_recorder(logger, [""], logs)
         watch = StreamWatch(plant) if args.stream else None
         where = watch.listening() if watch is not None else None
-        client = demo_c37118.start_client(procs, where, args.measurements, args.mode, 2, idcode=args.pmu_idcode)
+        client = demo_c37118.start_client(procs, where, args.measurements, args.mode, 2, idcode=args.pmu_idcode,
+                                          env=key_environment(key))
         start_when_read_back(
             [(controller, {"/controller": expected_parameters(controller_node_parameters(), controller_params)}),
-             (plant, {"/plant": expected_parameters(plant_node_parameters(), plant_params)})], plant, logs, key)
+             (plant, {"/plant": expected_parameters(plant_node_parameters(), plant_params)}),
+             *stated_only(logger, client)], plant, logs, key)
         demo_c37118.wait_connected(client, f"b = {b:<5g}")
         finish_plant(procs, plant, args, f"b = {b:<5g}", watch=watch)
         controller.stop()

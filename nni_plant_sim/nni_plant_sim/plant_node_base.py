@@ -77,9 +77,15 @@ class PlantNodeBase(LoopNode):
         self._wait = SubscriberWait(values["wait_for_subscribers"], values["discovery_settle_s"],
                                     values["wait_timeout_s"], self.now_ns())
         self._t0_ns, self._finished_ns, self._gave_up = None, None, False
+        self._status_signers = None  # made at the first status (the node's name is resolved by then)
         self._writer_counts = [-1] * len(self.namespaces)
-        self._pmu_pubs = [StampedPublisher(self, contract.TOPIC_PMU, ns) for ns in self.namespaces]
-        self._state_pubs = [StampedPublisher(self, contract.TOPIC_PLANT_STATE, ns) for ns in self.namespaces]
+        # With the run's key every measurement and true state is sealed (measurements with the mode: the
+        # controller takes a lockstep stamp as the plant's clock), each topic under its own key.
+        mode = command_auth.LOCKSTEP_FLAG if self._lockstep else command_auth.REALTIME_FLAG
+        self._pmu_pubs = [StampedPublisher(self, contract.TOPIC_PMU, ns, key=self._key, flag=mode)
+                          for ns in self.namespaces]
+        self._state_pubs = [StampedPublisher(self, contract.TOPIC_PLANT_STATE, ns, key=self._key)
+                            for ns in self.namespaces]
         self._clock_pub = StampedPublisher(self, contract.TOPIC_CLOCK) if self._lockstep else None
         self._command_subs = [contract.subscribe(self, contract.TOPIC_BATTERY_COMMAND,
                                                  lambda data, i=i: self._on_command(i, data), ns, raw=True)
@@ -285,12 +291,25 @@ class PlantNodeBase(LoopNode):
     def publish_diagnostics(self) -> list[dict]:
         """One status per generator (``plant``, namespaced by its hardware_id), all in one message; their values."""
         generators = self._generator_values()
-        statuses = [("plant", *channel.health(self._loop is not None, self._wait.text), values, f"/{ns}/plant" if ns else "")
-                    for ns, channel, values in zip(self.namespaces, self._channels, generators)]
+        stamp_ns = self.now_ns()
+        statuses = [("plant", *channel.health(self._loop is not None, self._wait.text),
+                     self._sealed_status(i, stamp_ns, values), f"/{ns}/plant" if ns else "")
+                    for i, (ns, channel, values) in enumerate(zip(self.namespaces, self._channels, generators))]
         if self._stream is not None:
             statuses.append(("c37118_server", *self._stream.status(), ""))
-        self.publish_statuses(statuses)
+        self.publish_statuses(statuses, stamp_ns)
         return generators
+
+    def _sealed_status(self, index: int, stamp_ns: int, values: dict) -> dict:
+        """A generator's status values, with the run's key also ``seal``: its ``run_ended`` sealed for its controller
+        (:func:`nni_msgs_adapter.ros.contract.status_topic`, :func:`~nni_msgs_adapter.ros.contract.plant_run_ended`)."""
+        if self._key is None:
+            return values
+        if self._status_signers is None:
+            self._status_signers = [command_auth.Signer(self._key, contract.status_topic(
+                self.get_fully_qualified_name() if ns == "" else f"/{ns}/plant"), "status") for ns in self.namespaces]
+        ended = 1.0 if values[contract.RUN_ENDED] else 0.0
+        return {**values, contract.STATUS_SEAL: self._status_signers[index].seal(stamp_ns, ended).decode()}
 
     def close(self) -> None:
         """Final diagnostics before the node goes (SIGINT/SIGTERM or end of run), also printed as one JSON line.

@@ -26,7 +26,7 @@ import time
 
 from nni_msgs_adapter.c37118.client import PdcClient
 from nni_msgs_adapter.c37118.feed import StationFeeds
-from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros import command_auth, contract
 from nni_msgs_adapter.ros.defaults import load_defaults
 from nni_msgs_adapter.ros.loop_node import LoopNode, StampedPublisher
 from nni_msgs_adapter.ros.node_main import run_node
@@ -77,7 +77,12 @@ class C37118ClientNode(LoopNode):
             raise ValueError(f"namespaces must be distinct, got {namespaces}")
         lockstep = values["mode"] == "lockstep"
         self._feeds = StationFeeds(len(namespaces), lockstep, values["angle_phasor"], values["power_analog"])
-        self._pubs = [StampedPublisher(self, contract.TOPIC_C37118_PMU, ns) for ns in namespaces]
+        # With the run's key each republished measurement is sealed as the plant seals its pmu (the stream itself
+        # has no authentication: IEEE C37.118.2 defines none), so that a controller reading c37118/pmu acts on
+        # this node's samples alone.
+        key = command_auth.key_from_environment()
+        mode = command_auth.LOCKSTEP_FLAG if lockstep else command_auth.REALTIME_FLAG
+        self._pubs = [StampedPublisher(self, contract.TOPIC_C37118_PMU, ns, key=key, flag=mode) for ns in namespaces]
         self._client = PdcClient(values["pmu_host"], values["pmu_port"], values["pmu_idcode"], self._on_samples,
                                  max_age_ns=None if lockstep else round(values["max_age_s"] * 1e9))
         self._where = f"{values['pmu_host']}:{values['pmu_port']} (IDCODE {values['pmu_idcode']})"

@@ -17,6 +17,15 @@ The channel's
 ``offered_qos_profiles`` are the QoS of the publishers seen on the graph, so ``ros2 bag play``
 offers the same QoS.
 
+With the run's key (``NNI_COMMAND_KEY_FILE``, as the plant and its controllers have it) the logger
+checks the seal of every message on a sealed topic (:data:`contract.SEALS`: measurements, commands,
+true and controller states) as its readers do, under that topic's key and in sequence; a message
+whose seal does not verify (a rogue's, or a captured one sent again) is written apart, on
+:data:`~nni_msgs_adapter.recording.runs.FOREIGN_PREFIX` and its topic (``/nni_foreign/pmu``), which
+no reader takes for the loop's, and counted (``foreign`` in the counts line). ``/clock`` and
+``/diagnostics`` cannot carry a seal in their types and are recorded as they come (replay reads no
+time from ``/clock``). Without a key everything is recorded as it comes.
+
 ``run_metadata`` (a JSON object, e.g. what ``nni-demo`` ran) is written at start as the MCAP
 metadata record ``nni_run``, each top-level key holding its value's JSON text. At the end the
 writer adds rosbag2's own metadata record (``ros2 bag info`` shows "ROS Distro: jazzy").
@@ -42,13 +51,13 @@ from pathlib import Path
 from rclpy.node import Node
 from rclpy.task import Future
 
-from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros import command_auth, contract
 from nni_msgs_adapter.ros.defaults import logger_defaults
 from nni_msgs_adapter.recording.mcap_io import (
     OfferedQos, RecordingError, Ros2McapWriter, WriteFailure, qos_profiles_yaml, read_recording,
 )
 from nni_msgs_adapter.ros.node_main import run_node
-from nni_msgs_adapter.recording.runs import RUN_METADATA_NAME, split_topic
+from nni_msgs_adapter.recording.runs import FOREIGN_PREFIX, RUN_METADATA_NAME, split_topic
 from nni_msgs_adapter.ros.ros_params import Spec, declared_values
 
 @functools.cache
@@ -117,6 +126,7 @@ class McapLogger(Node):
     def __init__(self, **kwargs):
         super().__init__("mcap_logger", **kwargs)
         values = declared_values(self, parameters())
+        self._values = values
         metadata = run_metadata_record(values["run_metadata"])
         path = Path(values["output_path"] or datetime.now().strftime("nni_%Y%m%d_%H%M%S.mcap"))
         if not path.parent.is_dir():
@@ -128,9 +138,17 @@ class McapLogger(Node):
         if metadata is not None:
             self._writer.add_metadata(RUN_METADATA_NAME, metadata)
         self._recorded: dict[str, object] = {}
+        self._key = command_auth.key_from_environment()
+        #: topic -> messages written apart as not the loop's (their seals did not verify).
+        self.foreign: dict[str, int] = {}
         self._scan_graph()
         self.create_timer(values["discovery_period_s"], self._scan_graph)
         self.get_logger().info(f"recording to {path}")
+
+    def effective_parameters(self) -> dict:
+        """What the logger runs with, stated at start (node_main): also the sign, for a launcher's read-back, that
+        it has read the run's key (the key is removed once every node has)."""
+        return dict(self._values)
 
     @property
     def failure(self) -> WriteFailure | None:
@@ -170,10 +188,10 @@ class McapLogger(Node):
                 return
             msg_class, _, qos = contract.recorder_endpoint(name)
             self._recorded[topic] = self.create_subscription(
-                msg_class, topic, self._writer_for(channel, topic), qos, raw=True)
+                msg_class, topic, self._writer_for(channel, topic, name, qos_profiles_yaml(offered)), qos, raw=True)
             self.get_logger().info(SUBSCRIBED_PREFIX + topic)
 
-    def _writer_for(self, channel: int, topic: str):
+    def _writer_for(self, channel: int, topic: str, name: str, qos_yaml: str):
         """The callback of ``topic``: writes the message and those already queued behind it (``DRAIN_LIMIT`` in all).
 
         Draining the queue in one wake-up (``take_message`` on the subscription's handle, as the
@@ -184,6 +202,21 @@ class McapLogger(Node):
         """
         clock = self.get_clock()
         writer = self._writer
+        seal = contract.SEALS.get(name) if self._key is not None else None
+        verifier = None if seal is None else command_auth.Verifier(
+            self._key, topic, seal[0], seal[1] - command_auth.SEAL_LENGTH)
+        foreign = []  # the channel of the messages that do not verify, once one came
+
+        def channel_of(data: bytes) -> int:
+            fields = contract.sealed_fields(name, data)
+            if fields is not None and verifier.check(fields[0], fields[1], *fields[2]) == command_auth.AUTHENTIC:
+                return channel
+            if not foreign:
+                foreign.append(writer.add_channel(FOREIGN_PREFIX + topic, contract.TOPICS[name][0], qos_yaml))
+                self.get_logger().error(f"a message on {topic} is not sealed by this run's nodes: recorded apart on "
+                                        f"{FOREIGN_PREFIX + topic}")
+            self.foreign[topic] = self.foreign.get(topic, 0) + 1
+            return foreign[0]
 
         def write(cdr: bytes, info: dict) -> None:
             subscription = self._recorded[topic]
@@ -198,7 +231,8 @@ class McapLogger(Node):
                 if writer.failure is not None:
                     return  # reported once, at the failure; the node is stopping
                 try:
-                    writer.write(channel, data, received_ns, message_info["source_timestamp"])
+                    writer.write(channel if verifier is None else channel_of(data), data, received_ns,
+                                 message_info["source_timestamp"])
                 except WriteFailure:
                     return  # on_failure has reported it
 
@@ -216,7 +250,9 @@ class McapLogger(Node):
         """Finish the file (summary, indexes) and print the per-topic counts; after a failure only close it."""
         self._writer.close()
         if self.failure is None:
-            print(COUNTS_PREFIX + json.dumps({"path": str(self.path), "counts": self._writer.counts}), flush=True)
+            counts = {topic: n for topic, n in self._writer.counts.items() if not topic.startswith(FOREIGN_PREFIX + "/")}
+            print(COUNTS_PREFIX + json.dumps({"path": str(self.path), "counts": counts, "foreign": self.foreign}),
+                  flush=True)
 
 
 def main(args=None) -> int:

@@ -39,6 +39,22 @@ SAMPLE_TOPICS = (contract.TOPIC_PMU, contract.TOPIC_BATTERY_COMMAND, contract.TO
 _RELATIVE_TOPICS = sorted((name for name in contract.TOPICS if not name.startswith("/")), key=len, reverse=True)
 
 
+#: The logger records a message on a sealed topic whose seal does not verify under the run's key on this prefix and
+#: its topic (``/nni_foreign/gen1/pmu``): apart, so that no reader takes a rogue's sample for the loop's.
+FOREIGN_PREFIX = "/nni_foreign"
+
+
+def foreign_counts(recording: Recording) -> dict[str, int]:
+    """``{topic: messages}`` the logger recorded apart as not the loop's (:data:`FOREIGN_PREFIX`), by the topic they
+    came on."""
+    counts: dict[str, int] = {}
+    for record in recording.messages:
+        if record.topic.startswith(FOREIGN_PREFIX + "/"):
+            topic = record.topic[len(FOREIGN_PREFIX):]
+            counts[topic] = counts.get(topic, 0) + 1
+    return counts
+
+
 def split_topic(topic: str) -> tuple[str, str] | None:
     """``(namespace, contract topic)`` of a fully qualified name, or None if outside the contract.
 
@@ -49,6 +65,8 @@ def split_topic(topic: str) -> tuple[str, str] | None:
     """
     if topic in contract.TOPICS:
         return "", topic
+    if topic.startswith(FOREIGN_PREFIX + "/"):
+        return None  # where the logger puts what was not the loop's: no generator's
     for name in _RELATIVE_TOPICS:
         if topic.endswith("/" + name):
             return topic[: -len(name) - 1], name
@@ -100,6 +118,8 @@ class GeneratorRun:
     skipped : tuple of str
         One line per sample left out because its message broke the contract (a non-finite
         true state, for example): reported, the rest of the run still read.
+    controller_diagnostics : dict of str to str
+        Key/values of the controller's last ``diagnostics`` status (empty if none was recorded).
     """
 
     namespace: str
@@ -111,6 +131,7 @@ class GeneratorRun:
     omega_boundary: np.ndarray | None = None
     diagnostics: dict = field(default_factory=dict)
     skipped: tuple = ()
+    controller_diagnostics: dict = field(default_factory=dict)
 
     @property
     def t_s(self) -> np.ndarray:
@@ -142,6 +163,7 @@ class _Collected:
     omega_boundary: np.ndarray | None = None
     diagnostics: dict = field(default_factory=dict)
     skipped: list = field(default_factory=list)
+    controller_diagnostics: dict = field(default_factory=dict)
 
 
 def read_generator_runs(path: str | os.PathLike[str]) -> dict[str, GeneratorRun]:
@@ -249,11 +271,14 @@ def _collect(run: _Collected, name: str, msg) -> None:
 
 
 def _collect_diagnostics(collected: dict, msg) -> None:
-    """The plant statuses of a ``/diagnostics`` message, each to the generator its name gives."""
+    """The plant's and the controller's statuses of a ``/diagnostics`` message, each to the generator its name gives."""
     for status in msg.status:
         namespace, name = contract.split_status_name(status.name)
         if name == "plant":
             collected.setdefault(namespace, _Collected()).diagnostics = {kv.key: kv.value for kv in status.values}
+        elif name == "controller":
+            collected.setdefault(namespace, _Collected()).controller_diagnostics = {kv.key: kv.value
+                                                                                   for kv in status.values}
 
 
 def _generator_run(namespace: str, run: _Collected) -> GeneratorRun:
@@ -264,4 +289,4 @@ def _generator_run(namespace: str, run: _Collected) -> GeneratorRun:
                for name in contract.CONTROLLER_SIGNALS}
     boundary = run.omega_boundary if run.omega_boundary is not None and len(run.omega_boundary) >= 2 else None
     return GeneratorRun(namespace, stamps, values[:, 0], values[:, 1], values[:, 2], signals, boundary,
-                        run.diagnostics, tuple(run.skipped))
+                        run.diagnostics, tuple(run.skipped), run.controller_diagnostics)

@@ -92,14 +92,55 @@ def key_from_environment(environ=os.environ) -> bytes | None:
     return read_key(path) if path else None
 
 
+#: A run's key folder in the temporary directory: this prefix, the pid of the process that made it, ``-``, random.
+KEY_FOLDER_PREFIX = "nni-command-key-"
+
+
 def new_key_file() -> Path:
-    """A fresh key (``secrets``, 32 bytes) in a new folder of mode 0700 in the temporary directory; its path."""
-    folder = Path(tempfile.mkdtemp(prefix="nni-command-key-"))  # mkdtemp: mode 0700, this user's
+    """A fresh key (``secrets``, 32 bytes) in a new folder of mode 0700 in the temporary directory; its path.
+
+    The folder's name carries the maker's pid: the key folders of this user's runs whose maker is gone (a run
+    killed with SIGKILL, which removes nothing) are removed first (:func:`remove_stale_key_folders`).
+    """
+    remove_stale_key_folders()
+    folder = Path(tempfile.mkdtemp(prefix=f"{KEY_FOLDER_PREFIX}{os.getpid()}-"))  # mkdtemp: mode 0700, this user's
     path = folder / _KEY_NAME
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     with os.fdopen(fd, "wb") as handle:
         handle.write(secrets.token_bytes(KEY_BYTES))
     return path
+
+
+def remove_stale_key_folders(folder: str | os.PathLike | None = None) -> list[Path]:
+    """Remove this user's key folders in ``folder`` (default: the temporary directory) whose maker's pid is not
+    running any more, and any of the earlier naming (no pid) older than a day; the folders removed."""
+    removed = []
+    for entry in Path(folder or tempfile.gettempdir()).glob(KEY_FOLDER_PREFIX + "*"):
+        try:
+            status = entry.lstat()
+        except OSError:
+            continue
+        if not stat.S_ISDIR(status.st_mode) or status.st_uid != os.getuid():
+            continue
+        pid = entry.name[len(KEY_FOLDER_PREFIX):].partition("-")[0]
+        if pid.isdigit() and int(pid) > 0:
+            if _running(int(pid)):
+                continue
+        elif time.time() - status.st_mtime < 86_400:
+            continue
+        shutil.rmtree(entry, ignore_errors=True)
+        removed.append(entry)
+    return removed
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def remove_key_file(path: Path) -> None:
@@ -117,52 +158,111 @@ def run_key():
         remove_key_file(path)
 
 
-def topic_key(key: bytes, topic: str) -> bytes:
-    """The key of one command topic (its absolute name, ``/gen1/battery/command``), derived from the run's."""
-    return hmac.digest(key, _KEY_TAG + topic.encode(), "sha256")
+#: What a key seals: its key's domain tag and its MAC's. Every direction has a key of its own, derived from the
+#: run's and the topic's name (:func:`topic_key`): a seal made for one kind or one topic verifies on no other.
+#: ``command``: a controller's battery command; ``measurement``: a plant's (or the C37.118 client's) ``pmu``;
+#: ``state``: ``plant/state`` and ``controller/state`` (what analysis and the recording read); ``status``: the
+#: plant's ``run_ended`` on ``/diagnostics``.
+KINDS = {
+    "command": (_KEY_TAG, _MAC_TAG),
+    "measurement": (b"nni measurement key\x00", b"nni measurement v1\x00"),
+    "state": (b"nni state key\x00", b"nni state v1\x00"),
+    "status": (b"nni status key\x00", b"nni status v1\x00"),
+}
+#: A measurement's seal starts with the plant's mode, under the MAC: ``L|`` lockstep (its stamps are the simulated
+#: clock), ``R|`` realtime (its stamps are wall time); then the seal of :data:`SEAL_LENGTH`.
+LOCKSTEP_FLAG, REALTIME_FLAG = b"L|", b"R|"
+FLAG_LENGTH = 2
+MEASUREMENT_SEAL_LENGTH = FLAG_LENGTH + SEAL_LENGTH
+_STRUCTS: dict[int, struct.Struct] = {}
 
 
-def command_mac(key: bytes, topic: str, sequence: int, stamp_ns: int, power_pu: float) -> bytes:
-    """The MAC (64 lowercase hex digits, ASCII) of one command on ``topic``, under that topic's ``key``."""
-    message = _MAC_TAG + topic.encode() + b"\x00" + _FIELDS.pack(sequence, stamp_ns, power_pu)
+def topic_key(key: bytes, topic: str, kind: str = "command") -> bytes:
+    """The key of one topic (its absolute name, ``/gen1/battery/command``) and kind (:data:`KINDS`), derived from the
+    run's."""
+    return hmac.digest(key, KINDS[kind][0] + topic.encode(), "sha256")
+
+
+def _fields(sequence: int, stamp_ns: int, values) -> bytes:
+    form = _STRUCTS.get(len(values))
+    if form is None:
+        form = _STRUCTS[len(values)] = struct.Struct(f"<Qq{len(values)}d")
+    return form.pack(sequence, stamp_ns, *values)
+
+
+def seal_mac(key: bytes, kind: str, topic: str, sequence: int, stamp_ns: int, values, flag: bytes = b"") -> bytes:
+    """The MAC (64 lowercase hex digits, ASCII) of one message on ``topic`` under that topic's ``key``: over the
+    kind's tag, the topic, the flag, the sequence, the stamp and the float64 ``values`` (a JointState's positions,
+    velocities and efforts, in that order)."""
+    message = KINDS[kind][1] + topic.encode() + b"\x00" + flag + _fields(sequence, stamp_ns, values)
     return hmac.digest(key, message, "sha256").hex().encode()
 
 
-class CommandSigner:
-    """Seals a controller's commands on ``topic``: sequence numbers from ``first_sequence`` (default: now, in ns)."""
+def command_mac(key: bytes, topic: str, sequence: int, stamp_ns: int, power_pu: float) -> bytes:
+    """The MAC of one command on ``topic``, under that topic's ``key`` (:func:`seal_mac` of kind ``command``)."""
+    return seal_mac(key, "command", topic, sequence, stamp_ns, (power_pu,))
 
-    def __init__(self, key: bytes, topic: str, first_sequence: int | None = None):
-        self.topic, self._key = topic, topic_key(key, topic)
+
+class Signer:
+    """Seals the messages of one ``kind`` on ``topic``: sequence numbers from ``first_sequence`` (default: now, in
+    ns, so that a restarted sender counts on upwards under the same key)."""
+
+    def __init__(self, key: bytes, topic: str, kind: str = "command", first_sequence: int | None = None):
+        self.topic, self.kind, self._key = topic, kind, topic_key(key, topic, kind)
         self.sequence = time.time_ns() if first_sequence is None else first_sequence
 
-    def seal(self, stamp_ns: int, power_pu: float) -> bytes:
-        """The seal of the next command (``SEAL_LENGTH`` ASCII bytes for the frame_id)."""
+    def seal(self, stamp_ns: int, *values: float, flag: bytes = b"") -> bytes:
+        """The seal of the next message: ``flag``, then ``SEAL_LENGTH`` ASCII bytes (for the frame_id)."""
         self.sequence += 1
-        return b"%016x|" % self.sequence + command_mac(self._key, self.topic, self.sequence, stamp_ns, power_pu)
+        return flag + b"%016x|" % self.sequence + seal_mac(self._key, self.kind, self.topic, self.sequence, stamp_ns,
+                                                           values, flag)
 
 
-#: What :meth:`CommandVerifier.check` says of a seal.
+def CommandSigner(key: bytes, topic: str, first_sequence: int | None = None) -> Signer:
+    """The :class:`Signer` of a controller's commands on ``topic``."""
+    return Signer(key, topic, "command", first_sequence)
+
+
+#: What :meth:`Verifier.check` says of a seal.
 AUTHENTIC, UNAUTHENTICATED, REPLAYED = "authentic", "unauthenticated", "replayed"
 
 
-class CommandVerifier:
-    """Checks the seals of the commands on ``topic``: the MAC, and a sequence above the last that verified."""
+class Verifier:
+    """Checks the seals of one ``kind`` on ``topic``: the MAC, and a sequence above the last that verified.
 
-    def __init__(self, key: bytes, topic: str):
-        self.topic, self._key = topic, topic_key(key, topic)
+    ``flag_length``: the seals start with a flag of this many bytes (:data:`LOCKSTEP_FLAG`); the last authentic
+    one's is :attr:`flag`.
+    """
+
+    def __init__(self, key: bytes, topic: str, kind: str = "command", flag_length: int = 0):
+        self.topic, self.kind, self._key = topic, kind, topic_key(key, topic, kind)
+        self._flag_length, self._length = flag_length, flag_length + SEAL_LENGTH
         self.last_sequence = -1
+        self.flag = b""
 
-    def check(self, seal: bytes | None, stamp_ns: int, power_pu: float) -> str:
+    def check(self, seal: bytes | None, stamp_ns: int, *values: float) -> str:
         """AUTHENTIC (and the sequence recorded), UNAUTHENTICATED (no seal, malformed, a MAC that does not
         verify) or REPLAYED (a MAC that verifies on a sequence at or below the last one)."""
-        if seal is None or len(seal) != SEAL_LENGTH or seal[SEQUENCE_DIGITS] != ord("|") \
-                or not _HEX.issuperset(seal[:SEQUENCE_DIGITS]):
+        if seal is None or len(seal) != self._length:
+            return UNAUTHENTICATED
+        flag, seal = seal[:self._flag_length], seal[self._flag_length:]
+        if seal[SEQUENCE_DIGITS] != ord("|") or not _HEX.issuperset(seal[:SEQUENCE_DIGITS]):
             return UNAUTHENTICATED
         sequence = int(seal[:SEQUENCE_DIGITS], 16)
-        expected = command_mac(self._key, self.topic, sequence, stamp_ns, power_pu)
+        expected = seal_mac(self._key, self.kind, self.topic, sequence, stamp_ns, values, flag)
         if not hmac.compare_digest(seal[SEQUENCE_DIGITS + 1:], expected):
             return UNAUTHENTICATED
         if sequence <= self.last_sequence:
             return REPLAYED
-        self.last_sequence = sequence
+        self.last_sequence, self.flag = sequence, flag
         return AUTHENTIC
+
+
+def CommandVerifier(key: bytes, topic: str) -> Verifier:
+    """The :class:`Verifier` of the commands on ``topic`` (the plant's)."""
+    return Verifier(key, topic, "command")
+
+
+def MeasurementVerifier(key: bytes, topic: str) -> Verifier:
+    """The :class:`Verifier` of a plant's measurements on ``topic`` (``/gen1/pmu``): their seals carry its mode."""
+    return Verifier(key, topic, "measurement", FLAG_LENGTH)

@@ -74,6 +74,15 @@ BATTERY_JOINT = "battery"
 ROTOR_FRAME, BATTERY_FRAME, CONTROLLER_FRAME = "generator", "battery", "controller"
 #: header.frame_id of an authenticated command: this, then its seal (:mod:`.command_auth`, fixed length).
 SEALED_BATTERY_FRAME = f"{BATTERY_FRAME}|{command_auth.SCHEME}|"
+#: The same for the plant's measurements and true states, and the controller's state (:func:`seal_of`).
+SEALED_ROTOR_FRAME = f"{ROTOR_FRAME}|{command_auth.SCHEME}|"
+SEALED_CONTROLLER_FRAME = f"{CONTROLLER_FRAME}|{command_auth.SCHEME}|"
+#: The kind of seal (:data:`.command_auth.KINDS`) each sealed topic carries, and the length of its seal.
+SEALS = {TOPIC_PMU: ("measurement", command_auth.MEASUREMENT_SEAL_LENGTH),
+         TOPIC_C37118_PMU: ("measurement", command_auth.MEASUREMENT_SEAL_LENGTH),
+         TOPIC_BATTERY_COMMAND: ("command", command_auth.SEAL_LENGTH),
+         TOPIC_PLANT_STATE: ("state", command_auth.SEAL_LENGTH),
+         TOPIC_CONTROLLER_STATE: ("state", command_auth.SEAL_LENGTH)}
 CONTROLLER_SIGNALS = ("angle_dev", "x3", "w", "battery_power", "saturated", "w_hat", "battery_limit")
 
 #: History depth of every per-sample stream, at the writers and at the subscribers that
@@ -211,20 +220,25 @@ def ns_from_time(stamp: Time) -> int:
     return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
-def pmu_message(stamp_ns: int, delta_rad: float, speed_rad_s: float, p_elec_pu: float) -> JointState:
-    """A PMU measurement as JointState (see module docstring for the mapping)."""
+def pmu_message(stamp_ns: int, delta_rad: float, speed_rad_s: float, p_elec_pu: float,
+                seal: bytes | None = None) -> JointState:
+    """A PMU measurement as JointState (see module docstring for the mapping); ``seal``: its authentication."""
     msg = JointState(name=[ROTOR_JOINT], position=[float(delta_rad)], velocity=[float(speed_rad_s)],
                      effort=[float(p_elec_pu)])
-    msg.header.stamp, msg.header.frame_id = time_from_ns(stamp_ns), ROTOR_FRAME
+    msg.header.stamp = time_from_ns(stamp_ns)
+    msg.header.frame_id = ROTOR_FRAME if seal is None else SEALED_ROTOR_FRAME + seal.decode()
     return msg
 
 
-def rotor_bytes() -> cdr.StampedBytes:
-    """The bytes of :func:`pmu_message` and :func:`plant_state_message`: ``pack(stamp_ns, delta, speed, effort)``.
+def rotor_bytes(seal_length: int = 0) -> cdr.StampedBytes:
+    """The bytes of :func:`pmu_message` and :func:`plant_state_message`: ``pack(stamp_ns, delta, speed, effort)``,
+    with a seal of ``seal_length`` bytes (0: none) its last value.
 
     For the plant, which publishes them at every sample (:mod:`.cdr`: the same bytes, without
     building a message; tests/test_cdr.py).
     """
+    if seal_length:
+        return cdr.joint_state(SEALED_ROTOR_FRAME, (ROTOR_JOINT,), (1, 1, 1), seal_length)
     return cdr.joint_state(ROTOR_FRAME, (ROTOR_JOINT,), (1, 1, 1))
 
 
@@ -259,13 +273,13 @@ def command_from_message(msg: JointState) -> tuple[int, float]:
 
 
 def command_seal(msg: JointState) -> bytes | None:
-    """The seal a command carries in its frame_id (checked by :class:`.command_auth.CommandVerifier`), None if none."""
-    frame = msg.header.frame_id
-    return frame[len(SEALED_BATTERY_FRAME):].encode() if frame.startswith(SEALED_BATTERY_FRAME) else None
+    """The seal a command carries in its frame_id (checked by :func:`.command_auth.CommandVerifier`), None if none."""
+    return frame_seal(msg.header.frame_id, SEALED_BATTERY_FRAME)
 
 
 #: The layouts the loop's nodes publish, to read back without building a message (:meth:`cdr.StampedBytes.unpack`).
 _ROTOR_LAYOUT, _COMMAND_LAYOUT, _SEALED_LAYOUT = rotor_bytes(), command_bytes(), command_bytes(sealed=True)
+_SEALED_PMU_LAYOUT = rotor_bytes(command_auth.MEASUREMENT_SEAL_LENGTH)
 _CLOCK_LAYOUT = cdr.clock()
 
 
@@ -276,19 +290,56 @@ def _deserialised(data: bytes, msg_class):
         raise ContractError(f"not a {msg_class.__name__}: {error}") from None
 
 
-def pmu_from_bytes(data: bytes) -> tuple[tuple[int, float, float], tuple]:
-    """``(pmu_from_message's reading, the efforts)`` of a measurement received as bytes; ContractError if malformed.
+def pmu_from_bytes(data: bytes) -> tuple[tuple[int, float, float], tuple, bytes | None]:
+    """``(pmu_from_message's reading, the efforts, the seal or None)`` of a measurement received as bytes;
+    ContractError if malformed.
 
-    The plant's own layout (:func:`rotor_bytes`) is read in place (measured: 1.8 us against 17 us for
-    rclpy's deserialisation, on the controller's path at every sample); any other bytes are
+    The plant's own layouts (:func:`rotor_bytes`, sealed or not) are read in place (measured: 1.8 us against
+    17 us for rclpy's deserialisation, on the controller's path at every sample); any other bytes are
     deserialised by rclpy and judged as a message.
     """
+    fast = _SEALED_PMU_LAYOUT.unpack(data)
+    if fast is not None:
+        stamp_ns, (delta, speed, p_elec, seal) = fast
+        return (stamp_ns, delta, speed), (p_elec,), seal
     fast = _ROTOR_LAYOUT.unpack(data)
     if fast is not None:
         stamp_ns, (delta, speed, p_elec) = fast
-        return (stamp_ns, delta, speed), (p_elec,)
+        return (stamp_ns, delta, speed), (p_elec,), None
     msg = _deserialised(data, JointState)
-    return pmu_from_message(msg), tuple(msg.effort)
+    return pmu_from_message(msg), tuple(msg.effort), frame_seal(msg.header.frame_id, SEALED_ROTOR_FRAME)
+
+
+def frame_seal(frame_id: str, sealed_frame: str) -> bytes | None:
+    """The seal a frame_id carries after ``sealed_frame`` (``generator|hmac-sha256|``), None if it carries none."""
+    return frame_id[len(sealed_frame):].encode() if frame_id.startswith(sealed_frame) else None
+
+
+def sealed_fields(topic: str, data: bytes) -> tuple[bytes | None, int, tuple] | None:
+    """``(seal or None, stamp_ns, values)`` of a sealed contract ``topic``'s JointState bytes (:data:`SEALS`), where
+    ``values`` are its positions, velocities and efforts in that order (what a seal covers,
+    :func:`.command_auth.seal_mac`); None for bytes that are no JointState. For a recorder, which checks every
+    sealed topic: the loop's sealed layout read in place, any other bytes deserialised."""
+    fast = _sealed_layout(topic).unpack(data)
+    if fast is not None:
+        return fast[1][-1], fast[0], fast[1][:-1]
+    try:
+        msg = _deserialised(data, JointState)
+    except ContractError:
+        return None
+    frame = msg.header.frame_id
+    head, bar, _ = frame.partition("|")
+    seal = frame_seal(frame, f"{head}|{command_auth.SCHEME}|") if bar else None
+    return seal, ns_from_time(msg.header.stamp), (*msg.position, *msg.velocity, *msg.effort)
+
+
+_SEALED_LAYOUTS: dict = {}
+
+
+def _sealed_layout(topic: str) -> cdr.StampedBytes:
+    if topic not in _SEALED_LAYOUTS:
+        _SEALED_LAYOUTS[topic] = layout(topic, sealed=True)
+    return _SEALED_LAYOUTS[topic]
 
 
 def command_from_bytes(data: bytes) -> tuple[int, float, bytes | None]:
@@ -328,6 +379,7 @@ def warm_up() -> None:
     """
     pmu_from_message(pmu_message(0, 0.0, 0.0, 0.0)), command_from_message(command_message(0, 0.0))
     pmu_from_bytes(_ROTOR_LAYOUT.pack(0, 0.0, 0.0, 0.0)), command_from_bytes(_COMMAND_LAYOUT.pack(0, 0.0))
+    pmu_from_bytes(_SEALED_PMU_LAYOUT.pack(0, 0.0, 0.0, 0.0, b"0" * command_auth.MEASUREMENT_SEAL_LENGTH))
     command_from_bytes(_SEALED_LAYOUT.pack(0, 0.0, b"0" * command_auth.SEAL_LENGTH))
     clock_from_bytes(_CLOCK_LAYOUT.pack(0))
 
@@ -359,8 +411,12 @@ def controller_state_message(stamp_ns: int, angle_dev_rad: float, x3: float, w: 
     return msg
 
 
-def controller_state_bytes() -> cdr.StampedBytes:
-    """The bytes of :func:`controller_state_message`: ``pack`` takes its arguments (``saturated`` a bool or 0/1)."""
+def controller_state_bytes(seal_length: int = 0) -> cdr.StampedBytes:
+    """The bytes of :func:`controller_state_message`: ``pack`` takes its arguments (``saturated`` a bool or 0/1),
+    with a seal of ``seal_length`` bytes (0: none) the last."""
+    if seal_length:
+        return cdr.joint_state(SEALED_CONTROLLER_FRAME, CONTROLLER_SIGNALS, (len(CONTROLLER_SIGNALS), 0, 0),
+                               seal_length)
     return cdr.joint_state(CONTROLLER_FRAME, CONTROLLER_SIGNALS, (len(CONTROLLER_SIGNALS), 0, 0))
 
 
@@ -369,8 +425,11 @@ _LAYOUTS = {TOPIC_PMU: rotor_bytes, TOPIC_C37118_PMU: rotor_bytes, TOPIC_PLANT_S
             TOPIC_BATTERY_COMMAND: command_bytes, TOPIC_CONTROLLER_STATE: controller_state_bytes, TOPIC_CLOCK: cdr.clock}
 
 
-def layout(topic: str) -> cdr.StampedBytes:
-    """The bytes of a per-sample topic's messages as the loop's nodes publish them, in a buffer of its own."""
+def layout(topic: str, sealed: bool = False) -> cdr.StampedBytes:
+    """The bytes of a per-sample topic's messages as the loop's nodes publish them, in a buffer of its own;
+    ``sealed``: with the topic's seal (:data:`SEALS`) as the last value."""
+    if sealed:
+        return _LAYOUTS[topic](SEALS[topic][1]) if topic != TOPIC_BATTERY_COMMAND else command_bytes(sealed=True)
     return _LAYOUTS[topic]()
 
 
@@ -437,13 +496,24 @@ def diagnostic_values(msg: DiagnosticArray, name: str) -> dict | None:
 RUN_ENDED = "run_ended"
 
 
-def plant_run_ended(data: bytes, namespace: str) -> bool:
-    """The plant of ``namespace`` (``/`` or ``/gen1``, as Node.get_namespace) says in these ``/diagnostics``
-    bytes that its run has ended (bytes that are no DiagnosticArray say nothing).
+#: The key of the plant's status that seals its ``run_ended`` under the run's key (:func:`plant_run_ended`).
+STATUS_SEAL = "seal"
 
-    Anyone can publish on ``/diagnostics``: a false notice only spares the controller its
-    stand-down for the silence that follows it directly (the next measurement cancels it); the
-    battery still goes to zero through the plant's own command timeouts.
+
+def status_topic(hardware_id: str) -> str:
+    """The name a plant's status seals are made for: ``/diagnostics`` and its hardware_id (``/diagnostics/gen1/plant``)."""
+    return TOPIC_DIAGNOSTICS + hardware_id
+
+
+def plant_run_ended(data: bytes, namespace: str, verifier=None) -> tuple[bool, str | None]:
+    """``(ended, verdict)``: whether the plant of ``namespace`` (``/`` or ``/gen1``, as Node.get_namespace) says in
+    these ``/diagnostics`` bytes that its run has ended (bytes that are no DiagnosticArray say nothing), and,
+    with ``verifier`` (a :class:`.command_auth.Verifier` of kind ``status`` on :func:`status_topic`), what its
+    seal is (None when nothing claims an end): a claim that is not AUTHENTIC ends nothing.
+
+    Anyone can publish on ``/diagnostics``. Without a verifier a false notice only spares the
+    controller its stand-down for the silence that follows it directly (the next measurement
+    cancels it); the battery still goes to zero through the plant's own command timeouts.
 
     Deserialised only when the bytes hold the status name and a ``run_ended`` key whose value is
     ``True`` (:func:`_holds_run_ended`): every controller hears every status of the loop (a
@@ -453,12 +523,20 @@ def plant_run_ended(data: bytes, namespace: str) -> bool:
     namespace = namespace.strip("/")
     name = f"{namespace}/plant" if namespace else "plant"
     if name.encode() not in data or not _holds_run_ended(data):
-        return False
+        return False, None
     try:
-        values = diagnostic_values(_deserialised(data, DiagnosticArray), name)
+        msg = _deserialised(data, DiagnosticArray)
     except ContractError:
-        return False
-    return values is not None and values.get(RUN_ENDED) == "True"
+        return False, None
+    status = next((status for status in msg.status if status.name == name), None)
+    values = None if status is None else {kv.key: kv.value for kv in status.values}
+    if values is None or values.get(RUN_ENDED) != "True":
+        return False, None
+    if verifier is None:
+        return True, None
+    seal = values.get(STATUS_SEAL)
+    verdict = verifier.check(None if seal is None else seal.encode(), ns_from_time(msg.header.stamp), 1.0)
+    return verdict == command_auth.AUTHENTIC, verdict
 
 
 #: A KeyValue's key ``run_ended`` in CDR: the string's bytes and its NUL (its length word precedes them).

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from rclpy.node import Node
 
-from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros import command_auth, contract
 from nni_msgs_adapter.ros.ros_params import declared_values, effective_values, install_validation
 
 
@@ -33,11 +33,17 @@ class StampedPublisher:
     after the last publish (node_main: ``close``, then ``destroy_node``), which is what the guard protects.
     """
 
-    def __init__(self, node: Node, topic: str, namespace: str = "", layout=None):
-        self.layout = layout or contract.layout(topic)
+    def __init__(self, node: Node, topic: str, namespace: str = "", layout=None, key: bytes | None = None,
+                 flag: bytes = b""):
+        self.layout = layout or contract.layout(topic, sealed=key is not None)
         self.publisher = node.create_publisher(*contract.endpoint(topic, namespace))
         handle = self.publisher.handle
         self._send, self._readers = handle.publish_raw, handle.get_subscription_count
+        #: ``key``: the run's; each sample is then sealed (:data:`.contract.SEALS`: the topic's kind, under the key
+        #: of its absolute name), ``flag`` first (a measurement's mode, :data:`.command_auth.LOCKSTEP_FLAG`).
+        self.signer = None if key is None else command_auth.Signer(key, self.publisher.topic_name,
+                                                                   contract.SEALS[topic][0])
+        self._flag = flag
 
     def read(self) -> bool:
         """A reader is matched: what :meth:`publish` would send reaches someone."""
@@ -45,7 +51,10 @@ class StampedPublisher:
 
     def publish(self, stamp_ns: int, *values) -> None:
         if self._readers():
-            self._send(self.layout.pack(stamp_ns, *values))
+            if self.signer is None:
+                self._send(self.layout.pack(stamp_ns, *values))
+            else:
+                self._send(self.layout.pack(stamp_ns, *values, self.signer.seal(stamp_ns, *values, flag=self._flag)))
 
 
 class PolledReader:
@@ -127,14 +136,14 @@ class LoopNode(Node):
         """One status on ``/diagnostics``; ``hardware_id`` "": the node's."""
         self.publish_statuses([(name, level, message, values, hardware_id)])
 
-    def publish_statuses(self, statuses) -> None:
+    def publish_statuses(self, statuses, stamp_ns: int | None = None) -> None:
         """Statuses ``(name, level, message, values, hardware_id)`` in one message on ``/diagnostics``
         (:func:`.contract.diagnostics_array`), as diagnostic_updater sends a node's tasks: each reader
         wakes once for them all (a network plant's ten in separate messages to ten controller processes
         held its thread 6-70 ms a second)."""
         own = self.get_fully_qualified_name()
         self._diagnostics.publish(contract.diagnostics_array(
-            self.now_ns(), [(name, level, message, values, hardware_id or own)
+            self.now_ns() if stamp_ns is None else stamp_ns, [(name, level, message, values, hardware_id or own)
                             for name, level, message, values, hardware_id in statuses]))
 
     def close(self) -> None:
