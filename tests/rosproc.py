@@ -67,6 +67,25 @@ def session_signer(topic: str) -> command_auth.CommandSigner:
     return command_auth.CommandSigner(command_auth.read_key(SESSION_KEY_FILE), topic)
 
 
+_PMU_SIGNERS: dict = {}
+
+
+def sealed_pmu(msg, topic: str = "/pmu", lockstep: bool = False):
+    """``msg`` (a pmu JointState, as it is now) sealed as the run's plant seals its measurements on ``topic``
+    (absolute), in its mode: a probe playing the plant. Returns ``msg``."""
+    signer = _PMU_SIGNERS.get(topic)
+    if signer is None:
+        signer = _PMU_SIGNERS[topic] = command_auth.Signer(command_auth.read_key(SESSION_KEY_FILE), topic,
+                                                           "measurement")
+    flag = command_auth.LOCKSTEP_FLAG if lockstep else command_auth.REALTIME_FLAG
+    stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+    seal = signer.seal(stamp_ns, *msg.position, *msg.velocity, *msg.effort, flag=flag)
+    from nni_msgs_adapter.ros import contract
+
+    msg.header.frame_id = contract.SEALED_ROTOR_FRAME + seal.decode()
+    return msg
+
+
 def ros_env(domain_id: int, **extra) -> dict:
     """Environment for a node process: localhost discovery, the given domain, the session's command key."""
     env = dict(os.environ)

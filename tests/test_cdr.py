@@ -132,7 +132,15 @@ def test_the_peers_bytes_read_back_in_place_and_any_other_message_through_rclpy(
     from rclpy.serialization import serialize_message
 
     pmu = contract.rotor_bytes().pack(7_000_000_001, 0.2, -1.5, 0.75)
-    assert contract.pmu_from_bytes(pmu) == ((7_000_000_001, 0.2, -1.5), (0.75,))
+    assert contract.pmu_from_bytes(pmu) == ((7_000_000_001, 0.2, -1.5), (0.75,), None)
+    measurement_seal = b"L|" + b"%016x|" % 7 + b"cd" * 32
+    sealed_pmu = contract.rotor_bytes(len(measurement_seal)).pack(7_000_000_001, 0.2, -1.5, 0.75, measurement_seal)
+    assert contract.pmu_from_bytes(sealed_pmu) == ((7_000_000_001, 0.2, -1.5), (0.75,), measurement_seal)
+    assert contract.pmu_from_bytes(serialize_message(contract.pmu_message(3, 0.1, 0.2, 0.3, measurement_seal))) == \
+        ((3, 0.1, 0.2), (0.3,), measurement_seal)
+    assert contract.sealed_fields(contract.TOPIC_PMU, sealed_pmu) == (measurement_seal, 7_000_000_001, (0.2, -1.5, 0.75))
+    assert contract.sealed_fields(contract.TOPIC_PMU, serialize_message(contract.pmu_message(3, 0.1, 0.2, 0.3))) == \
+        (None, 3, (0.1, 0.2, 0.3))
     assert contract.command_from_bytes(contract.command_bytes().pack(7_000_000_001, -0.3)) == (7_000_000_001, -0.3,
                                                                                                 None)
     seal = b"%016x|" % 7 + b"ab" * 32
@@ -144,7 +152,7 @@ def test_the_peers_bytes_read_back_in_place_and_any_other_message_through_rclpy(
     assert contract.command_from_bytes(serialize_message(contract.command_message(9, 0.5))) == (9, 0.5, None)
     assert contract.command_from_bytes(serialize_message(contract.command_message(9, 0.5, seal))) == (9, 0.5, seal)
     two = cdr.joint_state("generator", (contract.ROTOR_JOINT,), (1, 1, 2)).pack(3, 0.1, 0.2, 0.3, 0.4)
-    assert contract.pmu_from_bytes(two) == ((3, 0.1, 0.2), (0.3, 0.4))
+    assert contract.pmu_from_bytes(two) == ((3, 0.1, 0.2), (0.3, 0.4), None)
     assert contract.clock_from_bytes(cdr.clock().pack(7_000_000_001)) == 7_000_000_001
     assert contract.clock_from_bytes(serialize_message(Clock(clock=contract.time_from_ns(9)))) == 9
 
@@ -187,13 +195,13 @@ def test_the_plants_end_of_run_is_read_from_diagnostics_bytes_of_its_own_namespa
         return serialize_message(contract.diagnostics_message(1, name, "OK", "running", values, hardware_id))
 
     ended = status("/gen1/plant", "plant", True)
-    assert contract.plant_run_ended(ended, "/gen1")
-    assert not contract.plant_run_ended(ended, "/gen11") and not contract.plant_run_ended(ended, "/")
-    assert not contract.plant_run_ended(status("/gen11/plant", "plant", True), "/gen1")
-    assert not contract.plant_run_ended(status("/gen1/plant", "plant", False), "/gen1")
-    assert not contract.plant_run_ended(status("/gen1/controller", "controller", None), "/gen1")
-    assert contract.plant_run_ended(status("/plant", "plant", True), "/")
-    assert not contract.plant_run_ended(b"gen1/plant True" + bytes(40), "/gen1")
+    assert contract.plant_run_ended(ended, "/gen1")[0]
+    assert not contract.plant_run_ended(ended, "/gen11")[0] and not contract.plant_run_ended(ended, "/")[0]
+    assert not contract.plant_run_ended(status("/gen11/plant", "plant", True), "/gen1")[0]
+    assert not contract.plant_run_ended(status("/gen1/plant", "plant", False), "/gen1")[0]
+    assert not contract.plant_run_ended(status("/gen1/controller", "controller", None), "/gen1")[0]
+    assert contract.plant_run_ended(status("/plant", "plant", True), "/")[0]
+    assert not contract.plant_run_ended(b"gen1/plant True" + bytes(40), "/gen1")[0]
 
 
 def test_a_network_plants_statuses_in_one_array_say_which_generators_run_ended(monkeypatch):
@@ -212,7 +220,35 @@ def test_a_network_plants_statuses_in_one_array_say_which_generators_run_ended(m
                      f"/gen{i}/plant") for i in (1, 2, 11)]
         return serialize_message(contract.diagnostics_array(1, statuses))
 
-    assert [contract.plant_run_ended(array({}), f"/gen{i}") for i in (1, 2, 11)] == [False] * 3
+    assert [contract.plant_run_ended(array({}), f"/gen{i}")[0] for i in (1, 2, 11)] == [False] * 3
     assert not deserialised
-    assert [contract.plant_run_ended(array({11: True}), f"/gen{i}") for i in (1, 2, 11)] == [False, False, True]
-    assert [contract.plant_run_ended(array({1: True, 2: True, 11: True}), f"/gen{i}") for i in (1, 2, 11)] == [True] * 3
+    assert [contract.plant_run_ended(array({11: True}), f"/gen{i}")[0] for i in (1, 2, 11)] == [False, False, True]
+    assert [contract.plant_run_ended(array({1: True, 2: True, 11: True}), f"/gen{i}")[0] for i in (1, 2, 11)] == [True] * 3
+
+
+def test_with_the_runs_key_only_the_plants_sealed_end_of_run_ends_it():
+    """A run_ended True counts only with its plant's seal (kind status, under /diagnostics and its hardware_id):
+    an unsealed claim, one sealed for another generator, or the plant's own sent again end nothing, and say why."""
+    from rclpy.serialization import serialize_message
+
+    from nni_msgs_adapter.ros import command_auth
+
+    key = bytes(range(32))
+    signer = command_auth.Signer(key, contract.status_topic("/gen1/plant"), "status")
+
+    def status(stamp: int, seal: bytes | None, hardware_id: str = "/gen1/plant") -> bytes:
+        values = {contract.RUN_ENDED: True, **({contract.STATUS_SEAL: seal.decode()} if seal else {})}
+        return serialize_message(contract.diagnostics_message(stamp, "plant", "OK", "ended", values, hardware_id))
+
+    def verifier():
+        return command_auth.Verifier(key, contract.status_topic("/gen1/plant"), "status")
+
+    gen1 = verifier()
+    real = status(5, signer.seal(5, 1.0))
+    assert contract.plant_run_ended(real, "/gen1", gen1) == (True, command_auth.AUTHENTIC)
+    assert contract.plant_run_ended(real, "/gen1", gen1) == (False, command_auth.REPLAYED)
+    assert contract.plant_run_ended(status(6, None), "/gen1", verifier()) == (False, command_auth.UNAUTHENTICATED)
+    assert contract.plant_run_ended(status(7, signer.seal(8, 1.0)), "/gen1", verifier())[0] is False  # other stamp
+    other = command_auth.Signer(key, contract.status_topic("/gen2/plant"), "status").seal(9, 1.0)
+    assert contract.plant_run_ended(status(9, other), "/gen1", verifier()) == (False, command_auth.UNAUTHENTICATED)
+    assert contract.plant_run_ended(real, "/gen1") == (True, None)  # without a key: as before

@@ -191,7 +191,9 @@ def test_a_coi_controller_answers_only_complete_stamps_and_says_what_it_could_no
 
     domain = fresh_domain_id()
     params = {"restoring_power": "measured", "reference_angle_rad": 0.1, "p_mech_pu": 0.7, "reference": "coi",
-              "coi_namespaces": ["/gen1", "/gen2"], "coi_inertias": [3.0, 1.0]}
+              "coi_namespaces": ["/gen1", "/gen2"], "coi_inertias": [3.0, 1.0],
+              # unsealed measurements, so writers are all it can go by (sealed: tests/test_measurement_trust.py)
+              "authentication": "none"}
     own = Probe(domain, (contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_DIAGNOSTICS), namespace="gen1")
     neighbour = Probe(domain, (), namespace="gen2", node_name="gen2_pmu")
     rogue = None

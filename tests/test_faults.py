@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from nni_battery_controller.law import ControllerParams, SampledController
 from nni_msgs_adapter.ros import contract
 from nni_plant_sim.model import SmibParams
-from rosproc import Probe, fresh_domain_id, node_processes, wait_until
+from rosproc import Probe, fresh_domain_id, node_processes, sealed_pmu, wait_until
 
 pytestmark = pytest.mark.ros
 
@@ -125,7 +125,7 @@ def test_node_commands_stay_within_b_whatever_arrives(controller_under_test, sam
         else:
             last_stamp[0] = stamp = next_stamp(last_stamp[0])
         delta = value + DELTA_BAR if kind == "valid" else value
-        probe.publish(contract.TOPIC_PMU, contract.pmu_message(stamp, delta, 0.0, 0.0))
+        probe.publish(contract.TOPIC_PMU, sealed_pmu(contract.pmu_message(stamp, delta, 0.0, 0.0)))
         if kind == "valid":
             answered.append(stamp)
             last_stamp[1] = stamp
@@ -146,7 +146,7 @@ def test_dropped_inputs_are_counted_in_diagnostics(controller_under_test):
     def counts_after_barrier():
         """Counters from a diagnostics message sent after every earlier sample was handled."""
         last_stamp[0] = last_stamp[1] = next_stamp(last_stamp[0])
-        probe.publish(contract.TOPIC_PMU, contract.pmu_message(last_stamp[0], DELTA_BAR, 0.0, 0.0))
+        probe.publish(contract.TOPIC_PMU, sealed_pmu(contract.pmu_message(last_stamp[0], DELTA_BAR, 0.0, 0.0)))
         assert answers_for(probe, last_stamp[0]) is not None  # everything before it was handled
         seen = len(probe.take(contract.TOPIC_DIAGNOSTICS))
         assert wait_until(lambda: any(contract.diagnostic_values(m, "controller") is not None
@@ -159,16 +159,18 @@ def test_dropped_inputs_are_counted_in_diagnostics(controller_under_test):
     before = counts_after_barrier()
     base = last_stamp[0]
     for delta, stamp in ((math.nan, base + 1), (DELTA_BAR, base), (DELTA_BAR, base - 5), (1e9, base + 2)):
-        probe.publish(contract.TOPIC_PMU, contract.pmu_message(stamp, delta, 0.0, 0.0))
-    malformed = contract.pmu_message(base + 3, DELTA_BAR, 0.0, 0.0)
+        probe.publish(contract.TOPIC_PMU, sealed_pmu(contract.pmu_message(stamp, delta, 0.0, 0.0)))
+    malformed = sealed_pmu(contract.pmu_message(base + 3, DELTA_BAR, 0.0, 0.0))  # sealed, then another shape
     malformed.name = ["rotor", "extra"]
     probe.publish(contract.TOPIC_PMU, malformed)
     after = counts_after_barrier()
     assert {k: after[k] - before[k] for k in COUNTERS} == {
-        "samples": 1, "non_finite": 1, "duplicate": 1, "out_of_order": 1, "implausible": 1, "malformed": 1}
+        "samples": 1, "non_finite": 1, "duplicate": 1, "out_of_order": 1, "implausible": 1, "malformed": 0,
+        "unauthenticated_measurements": 1}  # a message the contract cannot read cannot be tied to the plant
 
 
-COUNTERS = ("samples", "malformed", "non_finite", "duplicate", "out_of_order", "implausible")
+COUNTERS = ("samples", "malformed", "non_finite", "duplicate", "out_of_order", "implausible",
+            "unauthenticated_measurements")
 
 
 # --- stale data ----------------------------------------------------------------------------
@@ -187,7 +189,7 @@ def test_stale_data_zero_power_then_clean_resume(tmp_path):
             angle_dev = -0.5  # far from equilibrium: x3 moves away from 0 quickly
             stamp = time.time_ns()
             for _ in range(20):
-                probe.publish(contract.TOPIC_PMU, contract.pmu_message(stamp, angle_dev + DELTA_BAR, 0.0, 0.0))
+                probe.publish(contract.TOPIC_PMU, sealed_pmu(contract.pmu_message(stamp, angle_dev + DELTA_BAR, 0.0, 0.0)))
                 assert answers_for(probe, stamp) is not None
                 stamp += 20_000_000
                 time.sleep(0.02)
@@ -205,7 +207,7 @@ def test_stale_data_zero_power_then_clean_resume(tmp_path):
                         for m in probe.take(contract.TOPIC_DIAGNOSTICS)]
             assert "STALE" in statuses
             stamp = time.time_ns()  # data returns after a gap of > 5 periods in its own stamps
-            probe.publish(contract.TOPIC_PMU, contract.pmu_message(stamp, angle_dev + DELTA_BAR, 0.0, 0.0))
+            probe.publish(contract.TOPIC_PMU, sealed_pmu(contract.pmu_message(stamp, angle_dev + DELTA_BAR, 0.0, 0.0)))
             resumed = answers_for(probe, stamp)
             assert resumed is not None
             fresh = SampledController(SmibParams(), ControllerParams(battery_limit_pu=b), 1.0 / rate)
@@ -218,14 +220,16 @@ def test_stale_data_zero_power_then_clean_resume(tmp_path):
             probe.close()
 
 
-def test_in_lockstep_the_controller_checks_each_stamp_against_the_latest_clock_heard(tmp_path):
-    """The controller reads /clock when a measurement comes (no callback of its own): a stamp within
-    stamp_tolerance_s (1 s) of the newest /clock is answered, one 100 s ahead of it is not."""
+def test_without_authentication_in_lockstep_the_controller_checks_each_stamp_against_the_latest_clock_heard(tmp_path):
+    """authentication none: the controller reads /clock when a measurement comes (no callback of its own): a stamp
+    within stamp_tolerance_s (1 s) of the newest /clock is answered, one 100 s ahead of it is not. (With
+    authentication hmac it takes no time from /clock: tests/test_measurement_trust.py.)"""
     from rosgraph_msgs.msg import Clock
 
     domain = fresh_domain_id()
     with node_processes(tmp_path, domain) as start:
-        start("controller", CONTROLLER, {"battery_limit_pu": 0.3, "stale_after_periods": 10000})
+        start("controller", CONTROLLER, {"battery_limit_pu": 0.3, "stale_after_periods": 10000,
+                                         "authentication": "none"})
         probe = Probe(domain, (contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_DIAGNOSTICS))
         try:
             assert probe.wait_matched(contract.TOPIC_PMU, 1, 30.0) and probe.wait_matched(contract.TOPIC_CLOCK, 1, 30.0)

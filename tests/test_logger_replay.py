@@ -38,7 +38,7 @@ from nni_msgs_adapter.recording.mcap_io import MCAP_MAGIC, Ros2McapWriter, deser
 from nni_msgs_adapter.ros.defaults import controller_defaults, logger_defaults, plant_defaults
 from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX
 from nni_msgs_adapter.recording.runs import RUN_METADATA_NAME, read_generator_runs
-from rosproc import NodeProcess, Probe, busy_processes, fresh_domain_id, node_processes, ros_env
+from rosproc import NodeProcess, Probe, busy_processes, fresh_domain_id, node_processes, ros_env, sealed_pmu
 
 pytestmark = pytest.mark.ros
 
@@ -606,7 +606,7 @@ def test_publish_time_is_the_senders_dds_source_timestamp(tmp_path):
                                                                     info["source_timestamp"]), qos)
             assert probe.wait_matched(contract.TOPIC_PMU, 2, 30.0), "the probe's own reader and the logger's"
             for k in range(1, 21):
-                probe.publish(contract.TOPIC_PMU, contract.pmu_message(k * 1_000_000_000, 0.1 * k, 0.0, 0.5))
+                probe.publish(contract.TOPIC_PMU, sealed_pmu(contract.pmu_message(k * 1_000_000_000, 0.1 * k, 0.0, 0.5)))
                 time.sleep(0.02)
             time.sleep(0.5)
         finally:

@@ -48,6 +48,7 @@ import pytest
 
 from netns import HOST, network
 from nni_msgs_adapter.recording.mcap_io import read_messages
+from nni_msgs_adapter.recording.runs import split_topic
 from nni_msgs_adapter.ros import command_auth
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.node_main import FASTDDS_PROFILES_ENV, NETWORK_ENV
@@ -131,24 +132,27 @@ def multihost_env(domain: int, peer: str, discovery_range: str = "LOCALHOST") ->
 
 def recorded_topics(mcap: Path) -> dict[str, list[bytes]]:
     """The recording's serialized messages per topic, in order; the invariant set without its header stamp, each
-    battery command without its seal.
+    sealed message (command, measurement, state) without its seal.
 
     The plant stamps the invariant set, published once before the run, with the wall clock (in
     lockstep too): those 8 bytes (after the 4-byte CDR encapsulation header) are blanked, the rest compared.
-    A command's seal holds a sequence number from its controller's wall clock and a MAC under the run's
-    key, fresh each run: it is checked present and blanked.
+    A seal holds a sequence number from its writer's wall clock and a MAC under the run's key, fresh each
+    run: it is checked present and blanked (a measurement's mode flag before it is compared).
     """
+    marker = f"|{command_auth.SCHEME}|".encode()
     topics: dict[str, list[bytes]] = {}
     for record in read_messages(mcap):
         if record.topic in NOT_COMPARED:
             continue
         cdr = bytes(record.cdr_bytes)
-        if record.topic.endswith(contract.TOPIC_INVARIANT_SET):
+        name = split_topic(record.topic)[1]
+        if name == contract.TOPIC_INVARIANT_SET:
             cdr = cdr[:_CDR_HEADER] + bytes(_STAMP) + cdr[_CDR_HEADER + _STAMP:]
-        if record.topic.endswith(contract.TOPIC_BATTERY_COMMAND):
-            scheme = contract.SEALED_BATTERY_FRAME.encode()
-            assert scheme in cdr, f"{record.topic}: a command without a seal"
-            at = cdr.index(scheme) + len(scheme)
+        if name in contract.SEALS:
+            assert marker in cdr, f"{record.topic}: a message without a seal"
+            at = cdr.index(marker) + len(marker)
+            if contract.SEALS[name][0] == "measurement":
+                at += command_auth.FLAG_LENGTH
             cdr = cdr[:at] + bytes(command_auth.SEAL_LENGTH) + cdr[at + command_auth.SEAL_LENGTH:]
         topics.setdefault(record.topic, []).append(cdr)
     return topics

@@ -35,6 +35,7 @@ from netns import End, host_and_namespace
 from nni_msgs_adapter.ros.processes import node_command
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.recording.mcap_io import deserialize, read_messages
+from nni_msgs_adapter.recording.runs import FOREIGN_PREFIX
 from nni_msgs_adapter.ros.node_main import FASTDDS_PROFILES_ENV, NETWORK_ENV, network_profile
 from nni_plant_sim.plant_node import SUMMARY_PREFIX
 from rogue_peer import REPORT_PREFIX, ROGUE_POWER_PU
@@ -110,13 +111,16 @@ def run_attack(tmp_path: Path, network: str) -> dict:
                 out, _ = rogue.communicate()
     reports = [line[len(REPORT_PREFIX):] for line in out.splitlines() if line.startswith(REPORT_PREFIX)]
     assert reports, f"the rogue printed no report:\n{out}"
-    commands, applied = [], []
+    commands, foreign, applied = [], [], []
     for record in read_messages(mcap):
         if record.topic == "/" + contract.TOPIC_BATTERY_COMMAND:
             commands.append(contract.command_from_message(deserialize(record.type_name, record.cdr_bytes))[1])
+        elif record.topic == FOREIGN_PREFIX + "/" + contract.TOPIC_BATTERY_COMMAND:
+            foreign.append(contract.command_from_message(deserialize(record.type_name, record.cdr_bytes))[1])
         elif record.topic == "/" + contract.TOPIC_PLANT_STATE:
             applied.append(contract.plant_state_from_message(deserialize(record.type_name, record.cdr_bytes))[3])
-    return {"rogue": json.loads(reports[-1]), "sockets": sockets, "commands": commands, "applied": applied}
+    return {"rogue": json.loads(reports[-1]), "sockets": sockets, "commands": commands, "foreign": foreign,
+            "applied": applied}
 
 
 def test_a_process_in_another_network_namespace_cannot_join_the_default_loop(tmp_path):
@@ -126,6 +130,7 @@ def test_a_process_in_another_network_namespace_cannot_join_the_default_loop(tmp
     assert rogue["nodes"] == [] and rogue["measurements"] == 0 and rogue["max_command_subscribers"] == 0, rogue
     assert seen["commands"] and max(abs(p) for p in seen["commands"]) <= B + 1e-12, \
         "a command other than the controller's reached the loop"
+    assert seen["foreign"] == [], "the logger heard a command not sealed by this run's nodes"
     assert seen["applied"] and max(abs(p) for p in seen["applied"]) <= B + 1e-12
     fixed = [(address, port) for address, port in seen["sockets"] if port < _ephemeral_low()]
     assert fixed, seen["sockets"]
@@ -138,7 +143,10 @@ def test_with_the_multihost_switch_the_same_rogue_joins_the_loop(tmp_path):
     rogue = seen["rogue"]
     assert OUR_NODES <= set(rogue["nodes"]), rogue
     assert rogue["measurements"] > 0 and rogue["max_command_subscribers"] >= 1, rogue
-    assert ROGUE_POWER_PU in seen["commands"], "the rogue's commands did not reach the loop"
+    # The logger hears them (and records them apart, as not sealed by this run); the plant refuses them.
+    assert ROGUE_POWER_PU in seen["foreign"], "the rogue's commands did not reach the loop"
+    assert ROGUE_POWER_PU not in seen["commands"], "a rogue's command recorded as the loop's"
+    assert seen["applied"] and max(abs(p) for p in seen["applied"]) <= B + 1e-12
     assert any(address == "0.0.0.0" for address, port in seen["sockets"] if port < _ephemeral_low()), seen["sockets"]
 
 

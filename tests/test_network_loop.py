@@ -20,7 +20,7 @@ from nni_msgs_adapter.ros import contract
 from nni_plant_sim.cases import load_network
 from nni_plant_sim.network_plant_node import SUMMARY_PREFIX
 from nni_plant_sim.network_scenarios import AngleDisplacement, BusFault, MechanicalStep
-from rosproc import Probe, busy_processes, fresh_domain_id, node_processes, printed_json
+from rosproc import Probe, busy_processes, fresh_domain_id, node_processes, printed_json, sealed_pmu
 
 pytestmark = pytest.mark.ros
 
@@ -294,7 +294,7 @@ def test_a_controller_with_g_measured_answers_from_the_pmus_power_and_counts_wha
             for msg in (contract.pmu_message(stamp, 0.3, 0.0, 0.65), no_power,
                         contract.pmu_message(stamp + 2, 0.3, 0.0, math.nan),
                         contract.pmu_message(stamp + 3, 0.3, 0.0, 0.9)):
-                probe.publish(contract.TOPIC_PMU, msg)
+                probe.publish(contract.TOPIC_PMU, sealed_pmu(msg))  # as the plant would: its shape is the test
             commands = [contract.command_from_message(m) for m in probe.wait_for(contract.TOPIC_BATTERY_COMMAND, 2, 10.0)]
             assert commands[0] == (stamp, pytest.approx(0.65 - 0.7, abs=1e-15))  # w = x3 - L*0 - (P_M - P_E)
             assert commands[1] == (stamp + 3, pytest.approx(0.9 - 0.7, abs=1e-15))  # d = 0 kept x3 at 0

@@ -89,7 +89,7 @@ def recorded_pmu(path: Path) -> dict:
     out: dict = {}
     for record in read_recording(path).messages:
         if record.topic.endswith("/" + contract.TOPIC_PMU) or record.topic == "/" + contract.TOPIC_PMU:
-            (stamp, delta, speed), (p_elec,) = contract.pmu_from_bytes(record.cdr_bytes)
+            (stamp, delta, speed), (p_elec,), _seal = contract.pmu_from_bytes(record.cdr_bytes)
             out.setdefault(record.topic[: -len(contract.TOPIC_PMU) - 1], {})[stamp] = (delta, speed, p_elec)
     return out
 

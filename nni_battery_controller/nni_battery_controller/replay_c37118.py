@@ -87,7 +87,7 @@ def recorded_samples(recording) -> dict[str, list]:
         if split is None or split[1] != contract.TOPIC_PMU:
             continue
         try:
-            (stamp_ns, delta, speed), efforts = contract.pmu_from_bytes(record.cdr_bytes)
+            (stamp_ns, delta, speed), efforts, _seal = contract.pmu_from_bytes(record.cdr_bytes)
         except contract.ContractError as error:
             raise CliError(f"{recording.path}: malformed message on {record.topic}: {error}") from None
         samples.setdefault(split[0], []).append((stamp_ns, delta, speed, efforts[0] if efforts else math.nan))

@@ -25,10 +25,11 @@ import numpy as np
 from nni_msgs_adapter.recording.mcap_io import Recording, parse_qos_profiles_yaml
 from nni_msgs_adapter.recording.network_runs import CASE_KEY, namespace_order
 from nni_battery_controller.replay_load import load, readable_runs, recorded_network, recorded_scenario, trajectories
-from nni_msgs_adapter.recording.runs import GeneratorRun, run_metadata
+from nni_msgs_adapter.recording.runs import FOREIGN_PREFIX, GeneratorRun, foreign_counts, run_metadata
+from nni_battery_controller.controller_core import TRUST_COUNTERS as CONTROLLER_TRUST_COUNTERS
 
 #: Diagnostics keys of the plant's status that count what it did not trust or could not do, in this order.
-TRUST_COUNTERS = ("foreign_commands", "unsolicited_commands", "expired_commands", "invalid_commands",
+TRUST_COUNTERS = ("unauthenticated_commands", "replayed_commands", "foreign_commands", "unsolicited_commands", "expired_commands", "invalid_commands",
                   "clipped_commands", "writer_alarms", "stand_down_commands", "re_pairings", "deadline_misses",
                   "command_timeouts")
 
@@ -69,6 +70,10 @@ def info_lines(recording: Recording, runs: dict[str, GeneratorRun], parameters: 
         lines.append(f"{'Topic information: ' if index == 0 else ' ' * 19}Topic: {topic} | Type: {type_name} | "
                      f"Count: {count} | Serialization Format: cdr | QoS: {qos}")
     lines.append(f"Complete:          {'yes' if recording.complete else 'no: ' + recording.incompleteness()}")
+    foreign = foreign_counts(recording)
+    lines.append("Foreign messages:  " + (", ".join(f"{topic} {count}" for topic, count in sorted(foreign.items()))
+                                          + f" (not sealed by the run's nodes: recorded apart on {FOREIGN_PREFIX}, "
+                                            "never read as the loop's)" if foreign else "none"))
     if parameters is None:
         lines.append("Run parameters:    not recorded (no nni_run metadata): no verdicts")
         verdicts = {}
@@ -105,6 +110,10 @@ def generator_lines(namespace: str, run: GeneratorRun) -> list[str]:
     counters = [f"{key} {run.diagnostics[key]}" for key in TRUST_COUNTERS if key in run.diagnostics]
     lines.append(f"  trust (plant diagnostics, last status): {', '.join(counters)}" if counters
                  else "  trust: no plant diagnostics recorded for this generator")
+    inputs = [f"{key} {run.controller_diagnostics[key]}" for key in CONTROLLER_TRUST_COUNTERS
+              if key in run.controller_diagnostics]
+    if inputs:
+        lines.append(f"  trust (controller diagnostics, last status): {', '.join(inputs)}")
     return lines
 
 

@@ -1,0 +1,133 @@
+"""Issue 31: the controller acts only on its plant's own measurements, end of run and clock.
+
+A rogue process (tests/rogue_measurements.py) on the demo's domain answers every real measurement with a
+same-stamp race (three mirrored copies carrying the real seal), a mirrored copy one period ahead, the real
+message sent again and one captured five samples before, a /clock tick 100 s ahead, and now and then a
+forged ``run_ended``; its own fakes feed a flood. Each run below, as a user types it (``nni-demo``):
+
+* the controller acts on none of it: in lockstep the recorded run equals the offline sampled run to 1e-12;
+* the machine stays in step and the battery within b;
+* the run is flagged (exit 3, COMPROMISED naming the controller's counters, summary.json);
+* the counters say what happened (unauthenticated and replayed measurements, the foreign /clock writer);
+* the recording holds no foreign sample where the loop's are: one /pmu per measurement, the rogue's apart
+  on /nni_foreign/..., and ``nni-replay --info`` says how many.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nni_battery_controller.law import ControllerParams
+from nni_battery_controller.network_deployment import default_law
+from nni_battery_controller.network_sim import simulate_network
+from nni_battery_controller.simulate import simulate_sampled
+from nni_msgs_adapter.recording.mcap_io import read_recording
+from nni_msgs_adapter.recording.runs import FOREIGN_PREFIX, foreign_counts, generator_runs
+from nni_plant_sim.model import SmibParams
+from nni_plant_sim.cases import load_network
+from nni_plant_sim.network_scenarios import BusFault
+from nni_plant_sim.scenarios import InitialAngle
+from rosproc import busy_processes, fresh_domain_id, ros_env
+
+pytestmark = pytest.mark.ros
+
+BIN = Path(sys.executable).parent
+ROGUE = Path(__file__).with_name("rogue_measurements.py")
+
+
+def run_attacked_demo(tmp_path, demo_args: list[str], topics: list[str], statuses: list[str]):
+    """``nni-demo`` with the rogue on its domain from before the start; (demo result, the rogue's counts)."""
+    domain = fresh_domain_id()
+    env = ros_env(domain)
+    rogue = subprocess.Popen([sys.executable, str(ROGUE), "--topics", *topics,
+                              *[arg for status in statuses for arg in ("--status", status)]],
+                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert rogue.stdout.readline().strip() == "rogue: ready"
+        demo = subprocess.run([str(BIN / "nni-demo"), *demo_args, "--out", str(tmp_path), "--domain-id", str(domain)],
+                              env=env, capture_output=True, text=True, timeout=300)
+    finally:
+        rogue.send_signal(subprocess.signal.SIGINT)
+        out, err = rogue.communicate(timeout=30)
+    counts = json.loads(next(line for line in out.splitlines() if line.startswith("rogue: {"))[len("rogue: "):])
+    return demo, counts
+
+
+def assert_flagged(demo, counts: dict, reasons: dict, measurements_attacked: bool = True):
+    """Exit 3, a COMPROMISED line naming the controller's counters, and the counters say what the rogue did."""
+    assert demo.returncode == 3, demo.stdout + demo.stderr
+    assert "COMPROMISED" in demo.stdout and "compromised" in demo.stderr, demo.stdout
+    assert counts["real_seen"] > 0 and counts["clock"] > 0, counts
+    assert reasons.get("foreign_clock_writers", 0) >= 1, reasons
+    assert "foreign clock writers" in demo.stdout
+    if measurements_attacked:
+        assert reasons.get("unauthenticated_measurements", 0) > 0, reasons
+        assert reasons.get("replayed_measurements", 0) > 0, reasons
+        assert "unauthenticated measurements" in demo.stdout
+
+
+def assert_recording_holds_only_the_loops(path: str, pmu_topics: list[str], measurements: int):
+    recording = read_recording(path)
+    per_topic = {}
+    for record in recording.messages:
+        per_topic[record.topic] = per_topic.get(record.topic, 0) + 1
+    for topic in pmu_topics:
+        assert per_topic[topic] == measurements, (topic, per_topic[topic], measurements)
+    foreign = foreign_counts(recording)
+    assert all(foreign.get(topic, 0) > 0 for topic in pmu_topics), foreign
+    info = subprocess.run([str(BIN / "nni-replay"), path, "--info"], capture_output=True, text=True, timeout=120)
+    assert info.returncode == 0, info.stderr
+    (line,) = [line for line in info.stdout.splitlines() if line.startswith("Foreign messages:")]
+    for topic in pmu_topics:
+        assert f"{topic} {foreign[topic]}" in line and FOREIGN_PREFIX in line, line
+    return recording
+
+
+def test_smib_lockstep_the_rogue_changes_nothing_and_the_run_is_flagged(tmp_path):
+    b, duration, rate = 0.3, 10.0, 50.0
+    demo, counts = run_attacked_demo(tmp_path, ["--mode", "lockstep", "--b", str(b), "--duration", str(duration)],
+                                     ["/pmu"], ["/plant"])
+    (run,) = json.loads((tmp_path / "summary.json").read_text())["scenarios"]
+    assert_flagged(demo, counts, run["compromised"])
+    recording = assert_recording_holds_only_the_loops(run["recording"], ["/pmu"], int(duration * rate) + 1)
+    (generator,) = generator_runs(recording).values()
+    offline = simulate_sampled(SmibParams(), ControllerParams(battery_limit_pu=b), InitialAngle(), duration, rate)
+    np.testing.assert_allclose(generator.delta_rad, offline.delta_rad, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(generator.battery_power_pu[:-1], offline.battery_power_pu[:-1], rtol=0, atol=1e-12)
+    assert run["in_synchronism"] and run["max_abs_battery_power_pu"] <= b
+
+
+def test_smib_realtime_under_load_the_rogue_is_dropped_and_the_machine_stays_in_step(tmp_path):
+    b = 0.3
+    with busy_processes(2):
+        demo, counts = run_attacked_demo(tmp_path, ["--mode", "realtime", "--b", str(b), "--duration", "5"],
+                                         ["/pmu"], ["/plant"])
+    (run,) = json.loads((tmp_path / "summary.json").read_text())["scenarios"]
+    assert_flagged(demo, counts, run["compromised"])
+    assert run["in_synchronism"] and run["max_abs_battery_power_pu"] <= b + 1e-12
+    assert_recording_holds_only_the_loops(run["recording"], ["/pmu"], run["measurements_sent"]
+                                          if "measurements_sent" in run else run["samples"])
+
+
+@pytest.mark.parametrize("deployment", ["separate", "composed"])
+def test_network_lockstep_the_rogue_on_one_generator_changes_nothing(tmp_path, deployment):
+    b, duration = 0.3, 2.0
+    demo, counts = run_attacked_demo(
+        tmp_path, ["--case", "kundur_two_area", "--mode", "lockstep", "--b", str(b), "--duration", str(duration),
+                   "--deployment", deployment], ["/gen1/pmu"], ["/gen1/plant"])
+    (run,) = json.loads((tmp_path / "summary.json").read_text())["runs"]
+    reasons = run["compromised"]["gen1"]
+    assert_flagged(demo, counts, reasons)
+    assert set(run["compromised"]) == {"gen1", "gen2", "gen3", "gen4"}  # the /clock writer is every one's
+    assert run["in_synchronism"]
+    recording = assert_recording_holds_only_the_loops(run["recording"], ["/gen1/pmu"], int(duration * 50) + 1)
+    net = load_network("kundur_two_area")
+    offline = simulate_network(net, default_law(net), BusFault(net, 7, 0.1), [np.full(4, b)], duration, 50.0)
+    for i, generator in enumerate(generator_runs(recording).values()):
+        np.testing.assert_allclose(generator.delta_rad, offline.delta_rad[:, i, 0], rtol=0, atol=1e-12)
