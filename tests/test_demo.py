@@ -281,7 +281,7 @@ def test_rogue_commands_make_the_run_compromised(tmp_path):
 
 
 def test_compromised_reasons():
-    run = SimpleNamespace(battery_power_pu=np.array([0.0, 0.3, -0.3]))
+    run = SimpleNamespace(battery_power_pu=np.array([0.0, 0.3, -0.3]), controller_diagnostics={})
     clean = {"unauthenticated_commands": 0, "replayed_commands": 0, "foreign_commands": 0, "unsolicited_commands": 0,
              "writer_alarms": 0, "max_abs_applied_power_pu": 0.3}
     assert compromised_reasons(clean, run, 0.3) == {}
@@ -289,6 +289,11 @@ def test_compromised_reasons():
     assert compromised_reasons({**clean, "unauthenticated_commands": 7}, run, 0.3) == {"unauthenticated_commands": 7}
     assert compromised_reasons(clean, run, 0.2) == {"max_abs_applied_power_pu": 0.3}
     assert compromised_reasons({**clean, "max_abs_applied_power_pu": 5.0}, run, 0.3) == {"max_abs_applied_power_pu": 5.0}
+    # The controller's own counters (its last recorded status): inputs that were not its plant's.
+    attacked = SimpleNamespace(battery_power_pu=run.battery_power_pu, controller_diagnostics={
+        "unauthenticated_measurements": "12", "replayed_measurements": "0", "foreign_clock_writers": "1"})
+    assert compromised_reasons(clean, attacked, 0.3) == {"unauthenticated_measurements": 12,
+                                                         "foreign_clock_writers": 1}
     # A plant that does not report its trust counters cannot be judged: never taken as clean.
     with pytest.raises(CliError, match="writer_alarms"):
         compromised_reasons({"foreign_commands": 0, "unsolicited_commands": 0}, run, 0.3)

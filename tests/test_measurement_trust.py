@@ -28,12 +28,15 @@ from nni_battery_controller.network_deployment import default_law
 from nni_battery_controller.network_sim import simulate_network
 from nni_battery_controller.simulate import simulate_sampled
 from nni_msgs_adapter.recording.mcap_io import read_recording
+from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.recording.runs import FOREIGN_PREFIX, foreign_counts, generator_runs
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.cases import load_network
 from nni_plant_sim.network_scenarios import BusFault
 from nni_plant_sim.scenarios import InitialAngle
-from rosproc import busy_processes, fresh_domain_id, ros_env
+from nni_msgs_adapter.ros import command_auth
+from nni_plant_sim.plant_node import SUMMARY_PREFIX
+from rosproc import busy_processes, fresh_domain_id, node_processes, printed_json, ros_env, wait_until
 
 pytestmark = pytest.mark.ros
 
@@ -72,13 +75,21 @@ def assert_flagged(demo, counts: dict, reasons: dict, measurements_attacked: boo
         assert "unauthenticated measurements" in demo.stdout
 
 
-def assert_recording_holds_only_the_loops(path: str, pmu_topics: list[str], measurements: int):
+def assert_recording_holds_only_the_loops(path: str, pmu_topics: list[str], measurements: int | None = None):
+    """One recorded measurement per plant step (``measurements`` when given, else one fewer than the plant's
+    sealed states), no stamp twice, the rogue's apart and counted by ``nni-replay --info``."""
     recording = read_recording(path)
-    per_topic = {}
+    stamps: dict[str, list] = {}
     for record in recording.messages:
-        per_topic[record.topic] = per_topic.get(record.topic, 0) + 1
+        if record.topic in pmu_topics:
+            stamps.setdefault(record.topic, []).append(contract.pmu_from_bytes(record.cdr_bytes)[0][0])
+        else:
+            stamps.setdefault(record.topic, []).append(None)
     for topic in pmu_topics:
-        assert per_topic[topic] == measurements, (topic, per_topic[topic], measurements)
+        expected = measurements if measurements is not None else \
+            len(stamps[topic.rsplit("/", 1)[0] + "/" + contract.TOPIC_PLANT_STATE]) - 1
+        assert len(stamps[topic]) == expected, (topic, len(stamps[topic]), expected)
+        assert len(set(stamps[topic])) == expected, f"{topic}: a stamp recorded twice"
     foreign = foreign_counts(recording)
     assert all(foreign.get(topic, 0) > 0 for topic in pmu_topics), foreign
     info = subprocess.run([str(BIN / "nni-replay"), path, "--info"], capture_output=True, text=True, timeout=120)
@@ -90,12 +101,14 @@ def assert_recording_holds_only_the_loops(path: str, pmu_topics: list[str], meas
 
 
 def test_smib_lockstep_the_rogue_changes_nothing_and_the_run_is_flagged(tmp_path):
-    b, duration, rate = 0.3, 10.0, 50.0
+    # 60 s of simulated time (about 10 s of wall time with the rogue beside it): the rogue, up before the run,
+    # discovers the plant's writer about a second after the loop has started, and a 10 s lockstep run is over by then.
+    b, duration, rate = 0.3, 60.0, 50.0
     demo, counts = run_attacked_demo(tmp_path, ["--mode", "lockstep", "--b", str(b), "--duration", str(duration)],
                                      ["/pmu"], ["/plant"])
     (run,) = json.loads((tmp_path / "summary.json").read_text())["scenarios"]
     assert_flagged(demo, counts, run["compromised"])
-    recording = assert_recording_holds_only_the_loops(run["recording"], ["/pmu"], int(duration * rate) + 1)
+    recording = assert_recording_holds_only_the_loops(run["recording"], ["/pmu"], int(duration * rate))
     (generator,) = generator_runs(recording).values()
     offline = simulate_sampled(SmibParams(), ControllerParams(battery_limit_pu=b), InitialAngle(), duration, rate)
     np.testing.assert_allclose(generator.delta_rad, offline.delta_rad, rtol=0, atol=1e-12)
@@ -111,13 +124,12 @@ def test_smib_realtime_under_load_the_rogue_is_dropped_and_the_machine_stays_in_
     (run,) = json.loads((tmp_path / "summary.json").read_text())["scenarios"]
     assert_flagged(demo, counts, run["compromised"])
     assert run["in_synchronism"] and run["max_abs_battery_power_pu"] <= b + 1e-12
-    assert_recording_holds_only_the_loops(run["recording"], ["/pmu"], run["measurements_sent"]
-                                          if "measurements_sent" in run else run["samples"])
+    assert_recording_holds_only_the_loops(run["recording"], ["/pmu"])
 
 
 @pytest.mark.parametrize("deployment", ["separate", "composed"])
 def test_network_lockstep_the_rogue_on_one_generator_changes_nothing(tmp_path, deployment):
-    b, duration = 0.3, 2.0
+    b, duration = 0.3, 20.0  # long enough for the rogue to discover the plant (as for the SMIB above)
     demo, counts = run_attacked_demo(
         tmp_path, ["--case", "kundur_two_area", "--mode", "lockstep", "--b", str(b), "--duration", str(duration),
                    "--deployment", deployment], ["/gen1/pmu"], ["/gen1/plant"])
@@ -126,8 +138,32 @@ def test_network_lockstep_the_rogue_on_one_generator_changes_nothing(tmp_path, d
     assert_flagged(demo, counts, reasons)
     assert set(run["compromised"]) == {"gen1", "gen2", "gen3", "gen4"}  # the /clock writer is every one's
     assert run["in_synchronism"]
-    recording = assert_recording_holds_only_the_loops(run["recording"], ["/gen1/pmu"], int(duration * 50) + 1)
+    recording = assert_recording_holds_only_the_loops(run["recording"], ["/gen1/pmu"], int(duration * 50))
     net = load_network("kundur_two_area")
     offline = simulate_network(net, default_law(net), BusFault(net, 7, 0.1), [np.full(4, b)], duration, 50.0)
     for i, generator in enumerate(generator_runs(recording).values()):
         np.testing.assert_allclose(generator.delta_rad, offline.delta_rad[:, i, 0], rtol=0, atol=1e-12)
+
+
+def test_a_controller_with_another_runs_key_acts_on_nothing_and_says_so_in_one_line(tmp_path):
+    """Started by hand with the key file of another run: no measurement verifies, so none is answered; the first is
+    named at ERROR in one line (and counted). It does not exit: a rogue's messages must not be able to stop it."""
+    other = command_auth.new_key_file()
+    try:
+        with node_processes(tmp_path, fresh_domain_id()) as start:
+            controller = start("controller", "nni_battery_controller.controller_node", {"battery_limit_pu": 0.3},
+                               env={command_auth.KEY_FILE_ENV: str(other)})
+            plant = start("plant", "nni_plant_sim.plant_node",
+                          {"mode": "lockstep", "duration_s": 0.5, "wait_for_subscribers": 1,
+                           "lockstep_timeout_s": 0.05})
+            assert plant.wait(timeout=60) == 0, plant.output()
+            assert wait_until(lambda: "unauthenticated statuses" in controller.output(), 10.0), controller.output()
+            assert controller.proc.poll() is None, "a foreign measurement stopped the controller"
+            output = controller.output()
+    finally:
+        command_auth.remove_key_file(other)
+    summary = printed_json(plant.output(), SUMMARY_PREFIX)
+    assert summary["measurements"] == 25 and summary["commands"] == 0, summary
+    refusals = [line for line in output.splitlines() if "unauthenticated measurements on /pmu" in line]
+    assert len(refusals) == 1 and "[ERROR]" in refusals[0] and "not sealed by this run's plant" in refusals[0], output
+    assert "Traceback" not in output

@@ -40,15 +40,19 @@ def test_invalid_start_up_values_stop_the_node_with_one_line(tmp_path, module, p
     assert len([line for line in output.splitlines() if line.strip()]) == 1, output
 
 
-@pytest.mark.parametrize("module", [PLANT, NETWORK_PLANT])
-def test_a_plant_without_the_runs_key_stops_with_one_line(tmp_path, module):
-    """command_authentication hmac (the default) and no NNI_COMMAND_KEY_FILE: nothing to verify commands with."""
+@pytest.mark.parametrize("module, expected", [
+    (PLANT, "command_authentication hmac needs the run's key: set NNI_COMMAND_KEY_FILE"),
+    (NETWORK_PLANT, "command_authentication hmac needs the run's key: set NNI_COMMAND_KEY_FILE"),
+    (CONTROLLER, "authentication hmac needs the run's key: set NNI_COMMAND_KEY_FILE"),
+])
+def test_a_node_without_the_runs_key_stops_with_one_line(tmp_path, module, expected):
+    """Authentication hmac (the default) and no NNI_COMMAND_KEY_FILE: nothing to seal or verify with."""
     with node_processes(tmp_path, fresh_domain_id()) as start:
         node = start("node", module, env={"NNI_COMMAND_KEY_FILE": ""})
         status = node.wait(timeout=30)
         output = node.output()
     assert status == 2
-    assert "command_authentication hmac needs the run's key: set NNI_COMMAND_KEY_FILE" in output
+    assert expected in output
     assert "Traceback" not in output
     assert len([line for line in output.splitlines() if line.strip()]) == 1, output
 
