@@ -25,6 +25,7 @@ setup(
         "console_scripts": [
             "mcap_logger = nni_msgs_adapter.recording.mcap_logger:main",
             "rerun_bridge = nni_msgs_adapter.viewing.rerun_bridge:main",
+            "foxglove_bridge = nni_msgs_adapter.viewing.foxglove_bridge:main",
             "c37118_client = nni_msgs_adapter.c37118.client_node:main",
         ],
     },

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 PACKAGES = ("nni_plant_sim", "nni_battery_controller", "nni_msgs_adapter")
-NODES = {"plant_node", "controller_node", "mcap_logger", "rerun_bridge", "c37118_client"}
+NODES = {"plant_node", "controller_node", "mcap_logger", "rerun_bridge", "c37118_client", "foxglove_bridge"}
 
 
 def executables() -> list[tuple[str, str]]:

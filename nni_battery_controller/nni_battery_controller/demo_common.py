@@ -186,7 +186,8 @@ RECORDER_WAIT_S = 120.0
 CONTROLLER_TOPICS = (contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE)
 
 
-def wait_for_recorder(logger, spaces, logs: Path) -> None:
+def wait_for_recorder(logger, spaces, logs: Path, topics=CONTROLLER_TOPICS, prefix: str = SUBSCRIBED_PREFIX,
+                      what: str = "the logger") -> None:
     """Wait until the logger has subscribed to every controller's topics (else CliError naming those it has not).
 
     ``spaces``: the controllers' namespaces (``[""]``: the SMIB's one, at the root).
@@ -195,17 +196,21 @@ def wait_for_recorder(logger, spaces, logs: Path) -> None:
     under load, the logger once found /gen3's and /gen4's only after 70 samples (recording 27 of 100
     commands), and the SMIB's logger once recorded none of its controller's 500 (a lockstep run over
     before it subscribed, beside a loaded suite): the plant's run is released only once these subscriptions
-    exist (call this before :func:`start_when_read_back`).
+    exist (call this before :func:`start_when_read_back`). The same for another recorder (the Foxglove
+    bridge): its ``topics``, the line ``prefix`` it logs per subscription, ``what`` it is called.
     """
-    wanted = {"/" + "/".join(filter(None, (ns, topic))) for ns in spaces for topic in CONTROLLER_TOPICS}
+    wanted = {"/" + "/".join(filter(None, (ns, topic))) for ns in spaces for topic in topics}
     deadline = time.monotonic() + RECORDER_WAIT_S
     while True:
-        missing = wanted - {line.split(SUBSCRIBED_PREFIX, 1)[1].strip() for line in logger.output().splitlines()
-                            if SUBSCRIBED_PREFIX in line}
+        missing = wanted - {line.split(prefix, 1)[1].strip() for line in logger.output().splitlines()
+                            if prefix in line}
         if not missing:
             return
-        if logger.poll() is not None or time.monotonic() > deadline:
-            raise CliError(f"the logger did not subscribe to {len(missing)} controller topic(s) within "
+        if logger.poll() is not None:
+            last = (logger.output().strip().splitlines() or ["(nothing printed)"])[-1]
+            raise CliError(f"{what} exited before it subscribed to every loop topic: {last} (logs in {logs})")
+        if time.monotonic() > deadline:
+            raise CliError(f"{what} did not subscribe to {len(missing)} loop topic(s) within "
                            f"{RECORDER_WAIT_S:g} s ({', '.join(sorted(missing)[:3])} ...; logs in {logs})")
         time.sleep(0.05)
 

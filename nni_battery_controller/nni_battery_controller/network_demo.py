@@ -29,7 +29,8 @@ import textwrap
 import time
 from pathlib import Path
 
-from nni_battery_controller import demo_c37118
+from nni_battery_controller import demo_c37118, demo_foxglove
+from nni_battery_controller.demo_foxglove import add_foxglove_option
 from nni_battery_controller.controller_config import parameters as controller_node_parameters
 from nni_battery_controller.demo_common import (
     COMPROMISED_PREFIX,
@@ -139,6 +140,7 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID for the run (default: $ROS_DOMAIN_ID, else 42)")
     add_rerun_option(parser)
+    add_foxglove_option(parser)
     demo_c37118.add_measurements_option(parser)
     add_pmu_options(parser)
     parser.add_argument("--deployment", choices=DEPLOYMENTS, default="separate",
@@ -171,6 +173,7 @@ def parse_arguments(argv=None):
     name = args.law or controller_defaults()["law"]
     args.law = network_laws_of(args, net, args.reference, (name,))[name]
     args.gen_limits = generator_limits(args.gen_b, net.size)
+    args.foxglove_address = demo_foxglove.foxglove_address(args)
     args.stream = stream_parameters(args, given_options(argv), float(net.f0_hz))
     for b in args.b:
         limits = battery_limits(net.size, b, args.gen_limits)
@@ -183,9 +186,9 @@ def parse_arguments(argv=None):
 
 def network_plant_parameters(args, limits) -> dict:
     """The network plant's parameters for one run of battery limits ``limits``: the case, its disturbance, the
-    run, its stream; it waits for each pmu's readers (a Rerun bridge among them)."""
-    readers = demo_c37118.plant_readers(args.measurements, pmu_readers(args.net, args.reference),
-                                        args.rerun is not None)
+    run, its stream; it waits for each pmu's readers (the Rerun and Foxglove bridges among them)."""
+    viewers = (args.rerun is not None) + (getattr(args, "foxglove_address", None) is not None)
+    readers = demo_c37118.plant_readers(args.measurements, pmu_readers(args.net, args.reference), viewers)
     return {**plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration, limits,
                                readers), **args.stream}
 
@@ -279,6 +282,10 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
     logs = args.out / "logs" / recording.stem
     started = time.monotonic()
     with run_key() as key, Supervisor(env, logs) as procs:
+        foxglove = demo_foxglove.start_bridge(procs, args.foxglove_address, key_environment(key), {
+            "run": index, "b": b, "gen_b": {f"gen{i + 1}": v for i, v in sorted(args.gen_limits.items())},
+            "law": args.law.name, "case": args.case, "scenario": args.scenario, "deployment": args.deployment,
+            "mode": args.mode}, logs)
         logger = procs.start_node("mcap_logger", "nni_msgs_adapter.recording.mcap_logger", {
             "output_path": str(recording), "discovery_period_s": 0.1,
             "run_metadata": json.dumps(run_metadata(args, plant_params, controllers))}, env=key_environment(key))
@@ -286,6 +293,8 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
         # The plant holds its run until released: it starts beside the others, its release waits for the logger.
         plant = procs.start_node("network_plant", PLANT, plant_params, env=key_environment(key))
         wait_for_recorder(logger, spaces, logs)
+        demo_foxglove.wait_streaming(foxglove, spaces, logs)
+        demo_foxglove.print_url(foxglove, index)
         watch = StreamWatch(plant) if args.stream else None
         where = watch.listening() if watch is not None else None
         client = demo_c37118.start_client(procs, where, args.measurements, args.mode,
@@ -293,7 +302,7 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
                                           args.pmu_idcode, env=key_environment(key))
         start_when_read_back([*controller_readbacks(started_controllers, controllers, args.deployment),
                               (plant, {"/network_plant": expected_parameters(plant_node_parameters(), plant_params)}),
-                              *stated_only(logger, client)],
+                              *stated_only(logger, client), *demo_foxglove.stated(foxglove)],
                              plant, logs, key)
         demo_c37118.wait_connected(client, run_label(args, b))
         finish_plant(procs, plant, args, run_label(args, b), SUMMARY_PREFIX, watch)
@@ -387,6 +396,7 @@ def main(argv=None) -> int:
         net, spaces = args.net, namespaces(args.net)
         # The logger and the plant, a Rerun bridge, the controllers: beyond 32, discovery is widened to cover them.
         env = with_participants(env, participants(net, args.deployment, 2 + (args.rerun is not None)
+                                                  + (args.foxglove is not None)
                                                   + (args.measurements == "c37118")))
         deployment = ("a controller process each" if args.deployment == "separate"
                       else "their controllers composed in one process")

@@ -34,7 +34,8 @@ import sys
 import time
 from pathlib import Path
 
-from nni_battery_controller import demo_c37118
+from nni_battery_controller import demo_c37118, demo_foxglove
+from nni_battery_controller.demo_foxglove import add_foxglove_option
 from nni_battery_controller.controller_config import parameters as controller_node_parameters
 from nni_battery_controller.demo_common import (
     check_complete,
@@ -105,6 +106,7 @@ def build_parser() -> OneLineParser:
                         help=f"PMU reporting rate, frames/s (default: {rate:g})")
     parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder, created (default: out/demo)")
     add_rerun_option(parser)
+    add_foxglove_option(parser)
     demo_c37118.add_measurements_option(parser)
     add_pmu_options(parser)
     parser.add_argument("--domain-id", type=int, default=None,
@@ -137,10 +139,11 @@ def recording_name(b: float, plant: dict | None = None) -> str:
 def plant_parameters(args, b: float, with_bridge: bool) -> dict:
     """The plant parameters of one run that differ from the package defaults (or set up the run): its battery
     rated b, its run held until the read-back."""
-    # It waits for the controller and the logger, and for the Rerun bridge when there is one.
+    # It waits for the controller and the logger, and for the Rerun and Foxglove bridges when there are.
     return {**args.model.plant_node_parameters(), "mode": args.mode, "duration_s": args.duration,
             "pmu_rate_hz": args.rate,
-            "wait_for_subscribers": demo_c37118.plant_readers(args.measurements, 2, with_bridge),
+            "wait_for_subscribers": demo_c37118.plant_readers(
+                args.measurements, 2, with_bridge + (getattr(args, "foxglove_address", None) is not None)),
             "battery_rating_pu": b, "hold_until_released": True, **args.stream}
 
 
@@ -195,15 +198,21 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
     recording = out / recording_name(b, plant_params)
     logs = out / "logs" / recording.stem
     started = time.monotonic()
+    meta = run_metadata(args, plant_params, controller_params)
     with run_key() as key, Supervisor(env, logs) as procs:
+        foxglove = demo_foxglove.start_bridge(procs, args.foxglove_address, key_environment(key), {
+            "run": index, "b": b, "law": meta["controller"]["law"], "scenario": meta["scenario"]["name"],
+            "mode": args.mode}, logs)
         logger = procs.start_node("mcap_logger", "nni_msgs_adapter.recording.mcap_logger", {
-            "output_path": str(recording), "discovery_period_s": 0.1,
-            "run_metadata": json.dumps(run_metadata(args, plant_params, controller_params))}, env=key_environment(key))
+            "output_path": str(recording), "discovery_period_s": 0.1, "run_metadata": json.dumps(meta)},
+            env=key_environment(key))
         controller = procs.start_node("controller", "nni_battery_controller.controller_node", controller_params,
                                       env=key_environment(key))
         # The plant holds its run until released: it starts beside the others, its release waits for the logger.
         plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params, env=key_environment(key))
         wait_for_recorder(logger, [""], logs)
+        demo_foxglove.wait_streaming(foxglove, [""], logs)
+        demo_foxglove.print_url(foxglove, index)
         watch = StreamWatch(plant) if args.stream else None
         where = watch.listening() if watch is not None else None
         client = demo_c37118.start_client(procs, where, args.measurements, args.mode, 2, idcode=args.pmu_idcode,
@@ -211,7 +220,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
         start_when_read_back(
             [(controller, {"/controller": expected_parameters(controller_node_parameters(), controller_params)}),
              (plant, {"/plant": expected_parameters(plant_node_parameters(), plant_params)}),
-             *stated_only(logger, client)], plant, logs, key)
+             *stated_only(logger, client), *demo_foxglove.stated(foxglove)], plant, logs, key)
         demo_c37118.wait_connected(client, f"b = {b:<5g}")
         finish_plant(procs, plant, args, f"b = {b:<5g}", watch=watch)
         controller.stop()
@@ -275,6 +284,7 @@ def parse_arguments(parser: OneLineParser, argv=None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     args.model = resolve_model(args, parser.prog)
     args.model.validate()
+    args.foxglove_address = demo_foxglove.foxglove_address(args)
     args.stream = stream_parameters(args, given_options(sys.argv[1:] if argv is None else argv),
                                     args.model.plant["f0_hz"])
     return args

@@ -129,7 +129,8 @@ def time_quality(synchronised: bool, error_s: float) -> int:
     return c37.time_quality_byte(code)
 
 
-def parse_server_address(text: str, default_host: str = "127.0.0.1") -> tuple[str, int]:
+def parse_server_address(text: str, default_host: str = "127.0.0.1", what: str = "a C37.118 server address"
+                         ) -> tuple[str, int]:
     """``(host, port)`` of ``[HOST:]PORT`` (an IPv6 host in brackets: ``[::1]:4712``); ValueError naming the text.
 
     Port 0 asks for a free port. Without a host, ``default_host`` (loopback): a stream leaves the machine
@@ -138,7 +139,7 @@ def parse_server_address(text: str, default_host: str = "127.0.0.1") -> tuple[st
     host, sep, port_text = text.strip().rpartition(":")
     host = host.strip("[]") if sep else default_host
     if not port_text.isdigit() or not 0 <= int(port_text) <= 65535 or (sep and not host):
-        raise ValueError(f"a C37.118 server address is [HOST:]PORT with a port 0..65535, got {text!r}")
+        raise ValueError(f"{what} is [HOST:]PORT with a port 0..65535, got {text!r}")
     return host, int(port_text)
 
 

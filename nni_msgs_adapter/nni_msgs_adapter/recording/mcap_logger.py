@@ -202,14 +202,11 @@ class McapLogger(Node):
         """
         clock = self.get_clock()
         writer = self._writer
-        seal = contract.SEALS.get(name) if self._key is not None else None
-        verifier = None if seal is None else command_auth.Verifier(
-            self._key, topic, seal[0], seal[1] - command_auth.SEAL_LENGTH)
+        check = contract.SealCheck(self._key, topic, name)
         foreign = []  # the channel of the messages that do not verify, once one came
 
         def channel_of(data: bytes) -> int:
-            fields = contract.sealed_fields(name, data)
-            if fields is not None and verifier.check(fields[0], fields[1], *fields[2]) == command_auth.AUTHENTIC:
+            if check.loops(data):
                 return channel
             if not foreign:
                 foreign.append(writer.add_channel(FOREIGN_PREFIX + topic, contract.TOPICS[name][0], qos_yaml))
@@ -231,7 +228,7 @@ class McapLogger(Node):
                 if writer.failure is not None:
                     return  # reported once, at the failure; the node is stopping
                 try:
-                    writer.write(channel if verifier is None else channel_of(data), data, received_ns,
+                    writer.write(channel_of(data), data, received_ns,
                                  message_info["source_timestamp"])
                 except WriteFailure:
                     return  # on_failure has reported it

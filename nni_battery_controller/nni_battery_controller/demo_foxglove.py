@@ -1,0 +1,86 @@
+"""The demos' live view in Foxglove (``nni-demo --foxglove [HOST:]PORT``, networks too; issue 34).
+
+Each run gets a Foxglove bridge node (:mod:`nni_msgs_adapter.viewing.foxglove_bridge`), serving before the
+run's logger starts (a port in use stops the run before any file is written), with
+the run's key (so that a rogue's messages are streamed apart, as the logger records them apart) and a label of
+the run (b, law, case or scenario, mode) on ``/nni/run``. The plant's run is released only once the bridge has
+subscribed to every ``pmu`` and controller topic, and the plant counts it among the readers it waits for: a
+client connected from the start sees every sample. The server is the same address run after run (a client
+reconnects when a run ends: Foxglove does so by itself).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from nni_msgs_adapter.c37118.profile import address_text, parse_server_address
+from nni_msgs_adapter.ros import contract
+from nni_msgs_adapter.ros.cli_support import CliError
+from nni_msgs_adapter.ros.processes import ChildError
+from nni_msgs_adapter.viewing.foxglove_bridge import SERVING_TEXT, STREAMING_PREFIX
+from nni_battery_controller.demo_common import CONTROLLER_TOPICS, wait_for_recorder
+
+#: Where ``--foxglove`` without an address serves: Foxglove's default port, on loopback.
+DEFAULT_ADDRESS = "127.0.0.1:8765"
+MODULE = "nni_msgs_adapter.viewing.foxglove_bridge"
+#: How long a bridge may take to listen (a loaded machine starts a Python process slowly).
+SERVE_WAIT_S = 60.0
+
+
+def add_foxglove_option(parser) -> None:
+    """``--foxglove [[HOST:]PORT]`` of the SMIB and the network demo."""
+    parser.add_argument("--foxglove", nargs="?", const=DEFAULT_ADDRESS, default=None, metavar="[HOST:]PORT",
+                        help="stream every run live to Foxglove over its WebSocket protocol at [HOST:]PORT "
+                             f"(alone: {DEFAULT_ADDRESS}; loopback unless a host is named); default: off")
+
+
+def foxglove_address(args) -> str | None:
+    """The checked ``--foxglove`` address (``host:port``), None without the option; CliError (one line) if bad."""
+    if args.foxglove is None:
+        return None
+    try:
+        host, port = parse_server_address(args.foxglove, what="--foxglove: a Foxglove server address")
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    if port == 0:
+        raise CliError("--foxglove needs a port a client can be told (not 0)")
+    return address_text(host, port)
+
+
+def start_bridge(procs, address: str | None, env: dict, label: dict, logs: Path):
+    """Start the run's Foxglove bridge at ``address`` (None: none, and None returned) and wait until it serves,
+    before anything of the run writes a file: a port in use stops the run with the bridge's one line."""
+    if address is None:
+        return None
+    bridge = procs.start_node("foxglove_bridge", MODULE, {"address": address, "discovery_period_s": 0.1,
+                                                          "run_label": json.dumps(label)}, env=env)
+    try:
+        bridge.wait_for_line(SERVING_TEXT, SERVE_WAIT_S)
+    except ChildError:
+        last = (bridge.output().strip().splitlines() or ["(nothing printed)"])[-1]
+        raise CliError(f"the Foxglove bridge is not serving: {last} (logs in {logs})") from None
+    return bridge
+
+
+def wait_streaming(bridge, spaces, logs: Path) -> None:
+    """Wait until ``bridge`` (None: nothing to wait for) streams every generator's ``pmu`` and controller topics."""
+    if bridge is not None:
+        wait_for_recorder(bridge, spaces, logs, (contract.TOPIC_PMU, *CONTROLLER_TOPICS), STREAMING_PREFIX,
+                          "the Foxglove bridge")
+
+
+def print_url(bridge, index: int) -> None:
+    """At the first run (``index`` 1), print ``Foxglove: ws://...`` as the bridge logged it."""
+    if bridge is None or index != 1:
+        return
+    for line in bridge.output().splitlines():
+        if SERVING_TEXT in line:
+            print(f"  Foxglove: {line.split(SERVING_TEXT, 1)[1].strip()} (Open connection > Foxglove WebSocket; "
+                  "layout: docs/foxglove/)", flush=True)
+            return
+
+
+def stated(bridge) -> list:
+    """The bridge's read-back entry (it has to have read the run's key before it is removed)."""
+    return [] if bridge is None else [(bridge, {"/foxglove_bridge": {}})]

@@ -1,0 +1,169 @@
+"""Foxglove bridge node: the loop's topics, live, over the Foxglove WebSocket protocol (issue 34).
+
+    ros2 run nni_msgs_adapter foxglove_bridge --ros-args -p address:=127.0.0.1:8765
+
+What foxglove_bridge does for C++ ROS systems, for this loop's topics only: the node scans the graph as the
+MCAP logger does (:func:`nni_msgs_adapter.recording.runs.split_topic`: measurements, battery commands, plant and
+controller states, the invariant set, ``/clock``, ``/diagnostics``, every generator's of a network) and offers
+each on a Foxglove server (``foxglove-sdk``) as a channel of the same name, ``cdr`` messages with the
+``ros2msg`` schema rosbag2 writes (:func:`nni_msgs_adapter.recording.mcap_profile.message_definition`), so that
+Foxglove's panels decode them as they decode foxglove_bridge's. The bytes are passed on as they came, never
+decoded. A channel ``/nni/run`` (JSON) says once a second which run is on (``run_label``: b, law, case, ...).
+
+With the run's key (``NNI_COMMAND_KEY_FILE``) every sealed topic is checked as the logger checks it
+(:class:`nni_msgs_adapter.ros.contract.SealCheck`); what does not verify goes to ``/nni_foreign/<topic>``, so a
+rogue's angle is never drawn as the machine's. Without a key everything is passed on as it comes.
+
+Off the control path: a separate process with its own subscriptions (KEEP_LAST, as the logger's: a slow bridge
+never holds a writer back), and the server queues at most ``backlog`` messages per client, dropping a slow
+client's oldest (the SDK's ``message_backlog_size``); nothing is buffered without bound. The server listens on
+loopback unless ``address`` names a host. Client messages the protocol does not allow (garbage, an unknown
+channel, a huge frame) are the SDK's to refuse.
+
+At exit one line ``foxglove_bridge counts: {"counts": {topic: n}, "foreign": {topic: n}}``.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import sys
+
+import foxglove
+from rclpy.node import Node
+
+from nni_msgs_adapter.c37118.profile import address_text, parse_server_address
+from nni_msgs_adapter.recording.mcap_profile import SCHEMA_ENCODING, message_definition
+from nni_msgs_adapter.recording.runs import FOREIGN_PREFIX, split_topic
+from nni_msgs_adapter.ros import command_auth, contract
+from nni_msgs_adapter.ros.defaults import load_defaults
+from nni_msgs_adapter.ros.node_main import run_node
+from nni_msgs_adapter.ros.ros_params import Spec, declared_values
+
+#: Logged (INFO) once a topic is offered, the topic after it (a launcher can wait for these, as for the logger's).
+STREAMING_PREFIX = "streaming topic "
+#: Logged (INFO) once the server listens, its ws:// URL after it.
+SERVING_TEXT = "foxglove bridge serving on"
+#: Prefix of the JSON line with per-topic counts printed at exit.
+COUNTS_PREFIX = "foxglove_bridge counts: "
+#: The channel that says which run is on.
+RUN_TOPIC = "/nni/run"
+_RUN_SCHEMA = {"type": "object", "title": "nni run", "properties": {"label": {"type": "string"}},
+               "additionalProperties": True}
+
+
+@functools.cache
+def parameters() -> tuple[Spec, ...]:
+    """The bridge's parameters, their defaults from ``config/foxglove_bridge.yaml``."""
+    defaults = load_defaults("nni_msgs_adapter", "foxglove_bridge.yaml", "foxglove_bridge")
+    return (
+        Spec("address", defaults["address"], "[HOST:]PORT of the Foxglove WebSocket server (loopback unless a host "
+             "is named; port 0: a free one).", read_only=True),
+        Spec("discovery_period_s", defaults["discovery_period_s"], "How often the graph is scanned for new topics, s.",
+             0.05, 60.0, read_only=True),
+        Spec("backlog", defaults["backlog"], "Messages queued per client; a slow client loses its oldest.", 16,
+             1_000_000, read_only=True),
+        Spec("run_label", defaults["run_label"], f"The run on air, a JSON object, sent on {RUN_TOPIC} once a second.",
+             read_only=True),
+    )
+
+
+def run_label(text: str) -> dict:
+    """The ``run_label`` parameter as a dict; ValueError (one line) if it is not a JSON object."""
+    if not text:
+        return {}
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"run_label must be a JSON object: {exc}") from None
+    if not isinstance(value, dict):
+        raise ValueError("run_label must be a JSON object")
+    return value
+
+
+def ros2_channel(topic: str, type_name: str) -> foxglove.Channel:
+    """A Foxglove channel of a ROS 2 topic: CDR messages, the type's ``ros2msg`` schema (as foxglove_bridge's)."""
+    schema = foxglove.Schema(name=type_name, encoding=SCHEMA_ENCODING, data=message_definition(type_name).encode())
+    return foxglove.Channel(topic, schema=schema, message_encoding="cdr")
+
+
+class FoxgloveBridge(Node):
+    """Offers every loop topic it finds on a Foxglove WebSocket server, the rogue's apart."""
+
+    def __init__(self, **kwargs):
+        super().__init__("foxglove_bridge", **kwargs)
+        self._values = values = declared_values(self, parameters())
+        self._label = run_label(values["run_label"])
+        host, port = parse_server_address(values["address"], what="a Foxglove server address")
+        self._key = command_auth.key_from_environment()
+        try:
+            self._server = foxglove.start_server(name="nni", host=host, port=port,
+                                                 message_backlog_size=int(values["backlog"]))
+        except Exception as exc:  # the SDK raises its own error types (address in use, ...)
+            raise ValueError(f"cannot serve Foxglove on {address_text(host, port)}: {exc}") from None
+        self.url = f"ws://{address_text(host, self._server.port)}"
+        self._run_channel = foxglove.Channel(RUN_TOPIC, message_encoding="json", schema=foxglove.Schema(
+            name="nni/Run", encoding="jsonschema", data=json.dumps(_RUN_SCHEMA).encode()))
+        self._streamed: dict[str, object] = {}
+        self.counts: dict[str, int] = {}
+        self.foreign: dict[str, int] = {}
+        self._scan_graph()
+        self.create_timer(values["discovery_period_s"], self._scan_graph)
+        self.create_timer(1.0, self._send_label)
+        self._send_label()
+        self.get_logger().info(f"{SERVING_TEXT} {self.url}")
+
+    def effective_parameters(self) -> dict:
+        """What the bridge runs with (stated at start: a launcher's read-back also learns it has the key)."""
+        return dict(self._values)
+
+    def _send_label(self) -> None:
+        self._run_channel.log({"label": ", ".join(f"{k} {v}" for k, v in self._label.items()), **self._label})
+
+    def _scan_graph(self) -> None:
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self._streamed:
+                continue
+            split = split_topic(topic)
+            if split is None or contract.TOPICS[split[1]][0] not in types:
+                continue
+            if not self.get_publishers_info_by_topic(topic):
+                continue
+            name = split[1]
+            msg_class, _, qos = contract.recorder_endpoint(name)
+            self._streamed[topic] = self.create_subscription(msg_class, topic, self._forward(topic, name), qos,
+                                                             raw=True)
+            self.get_logger().info(STREAMING_PREFIX + topic)
+
+    def _forward(self, topic: str, name: str):
+        type_name = contract.TOPICS[name][0]
+        channel, check, foreign = ros2_channel(topic, type_name), contract.SealCheck(self._key, topic, name), []
+        clock = self.get_clock()
+
+        def forward(data: bytes) -> None:
+            if check.loops(data):
+                self.counts[topic] = self.counts.get(topic, 0) + 1
+                channel.log(data, log_time=clock.now().nanoseconds)
+                return
+            if not foreign:
+                foreign.append(ros2_channel(FOREIGN_PREFIX + topic, type_name))
+                self.get_logger().error(f"a message on {topic} is not sealed by this run's nodes: streamed apart on "
+                                        f"{FOREIGN_PREFIX + topic}")
+            self.foreign[topic] = self.foreign.get(topic, 0) + 1
+            foreign[0].log(data, log_time=clock.now().nanoseconds)
+
+        return forward
+
+    def close(self) -> None:
+        self._server.stop()
+        print(COUNTS_PREFIX + json.dumps({"url": self.url, "counts": self.counts, "foreign": self.foreign}),
+              flush=True)
+
+
+def main(args=None) -> int:
+    """``ros2 run nni_msgs_adapter foxglove_bridge``."""
+    return run_node(FoxgloveBridge, args, prog="foxglove_bridge")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

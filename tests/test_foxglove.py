@@ -1,0 +1,180 @@
+"""nni-demo --foxglove, tried as a Foxglove user's client would (issue 34).
+
+An independent WebSocket client (tests/foxglove_client.py: the ``websockets`` package and the protocol's
+published spec, none of the project's code) connects to a running demo, subscribes to the measurements and
+the battery commands, decodes the CDR with ``rosbags`` from the schemas the server advertised (an empty
+typestore: nothing but what the stream says), and compares with the recording the demo wrote. A second
+client sends what a broken or hostile one would; the loop must not notice.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from foxglove_client import misbehave, record
+from rosproc import busy_processes, fresh_domain_id, ros_env
+
+pytestmark = pytest.mark.ros
+
+DEMO = Path(sys.executable).parent / "nni-demo"
+SMIB_TOPICS = {"/pmu": "sensor_msgs/msg/JointState", "/battery/command": "sensor_msgs/msg/JointState",
+               "/plant/state": "sensor_msgs/msg/JointState", "/controller/state": "sensor_msgs/msg/JointState",
+               "/plant/invariant_set": "geometry_msgs/msg/PolygonStamped",
+               "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray"}
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def recorded(path: Path, topic: str) -> list[bytes]:
+    """The CDR bytes of ``topic`` in the recording, in log order."""
+    with path.open("rb") as stream:
+        return [message.data for _, channel, message in make_reader(stream).iter_messages(topics=[topic])]
+
+
+def stream_typestore(channels: dict):
+    """A typestore knowing only the types the server advertised (their ros2msg schemas)."""
+    store = get_typestore(Stores.EMPTY)
+    for channel in channels.values():
+        if channel["schemaEncoding"] == "ros2msg":
+            store.register(get_types_from_msg(channel["schema"], channel["schemaName"]))
+    return store
+
+
+def start_demo(args: list[str], out: Path, domain: int) -> subprocess.Popen:
+    return subprocess.Popen([str(DEMO), *args, "--out", str(out), "--domain-id", str(domain)], env=ros_env(domain),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def is_slice(received: list[bytes], recording: list[bytes]) -> bool:
+    """Whether ``received`` is a contiguous run of ``recording`` (a client that joined late misses the start)."""
+    if not received or len(received) > len(recording):
+        return False
+    start = recording.index(received[0]) if received[0] in recording else -1
+    return start >= 0 and recording[start:start + len(received)] == received
+
+
+def is_subsequence(received: list[bytes], recording: list[bytes]) -> bool:
+    """Whether ``received`` appears in ``recording`` in order (a slow client may lose some, never reorder)."""
+    remaining = iter(recording)
+    return bool(received) and all(any(item == other for other in remaining) for item in received)
+
+
+def test_a_client_sees_the_smib_run_live_as_recorded_and_a_hostile_one_disturbs_nothing(tmp_path):
+    domain, port = fresh_domain_id(), free_port()
+    url = f"ws://127.0.0.1:{port}"
+
+    async def clients():
+        good = asyncio.create_task(record(url, {"/pmu", "/battery/command", "/nni/run"}, 120.0))
+        await asyncio.sleep(1.0)
+        bad = await misbehave(url)
+        return await good, bad
+
+    with busy_processes(2):
+        demo = start_demo(["--foxglove", f"127.0.0.1:{port}", "--mode", "realtime", "--b", "0.3",
+                           "--duration", "4"], tmp_path, domain)
+        try:
+            seen, hostile = asyncio.run(clients())
+            out, err = demo.communicate(timeout=120)
+        finally:
+            demo.kill()
+    assert demo.returncode == 0, err
+    assert f"Foxglove: {url} " in out and "b = 0.3   in sync" in out, out
+    # What Foxglove's panels need: every loop topic as CDR with its ROS 2 schema, and which run is on.
+    channels = seen["channels"]
+    assert {topic: (channels[topic]["encoding"], channels[topic]["schemaEncoding"], channels[topic]["schemaName"])
+            for topic in SMIB_TOPICS} == {topic: ("cdr", "ros2msg", name) for topic, name in SMIB_TOPICS.items()}
+    label = json.loads(seen["messages"]["/nni/run"][0][1])
+    assert (label["run"], label["b"], label["law"], label["mode"]) == (1, 0.3, "nni", "realtime"), label
+    store = stream_typestore(channels)
+    recording = tmp_path / "paper_b0.3.mcap"
+    for topic in ("/pmu", "/battery/command"):
+        got = [data for _, data in seen["messages"][topic]]
+        kept = recorded(recording, topic)
+        assert len(kept) == 200 and len(got) >= 180, (topic, len(got), len(kept))
+        assert is_slice(got, kept), topic
+        first, same = (store.deserialize_cdr(data, "sensor_msgs/msg/JointState") for data in (got[0], kept[kept.index(got[0])]))
+        assert list(first.position) == list(same.position) and first.name == same.name
+        assert (first.header.stamp.sec, first.header.stamp.nanosec) == (same.header.stamp.sec, same.header.stamp.nanosec)
+    # The hostile client: each bad message answered with an error status, the oversized frame ends its connection.
+    statuses = [answer["message"] for answer in hostile if isinstance(answer, dict) and answer.get("op") == "status"
+                and answer["level"] == 2]
+    assert any("Invalid message" in text for text in statuses), hostile
+    assert any("Unknown channel ID: 987654321" in text for text in statuses), hostile
+    assert hostile[-1][0] == "closed", hostile
+    summary = json.loads((tmp_path / "summary.json").read_text())["scenarios"][0]
+    assert summary["samples"] == 200 and summary["max_abs_battery_power_pu"] <= 0.3
+
+
+def test_a_client_sees_every_run_of_a_composed_network_live(tmp_path):
+    """Kundur's case, composed controllers, two runs in lockstep: the client reconnects per run (as Foxglove
+    does) and each run's measurements and commands of every generator reach it in the recording's order."""
+    domain, port = fresh_domain_id(), free_port()
+    url = f"ws://127.0.0.1:{port}"
+    topics = {f"/gen{k}/{name}" for k in range(1, 5) for name in ("pmu", "battery/command")} | {"/nni/run"}
+
+    async def two_runs():
+        return [await record(url, topics, 120.0) for _ in range(2)]
+
+    with busy_processes(2):
+        demo = start_demo(["--case", "kundur_two_area", "--deployment", "composed", "--mode", "lockstep",
+                           "--b", "0", "0.3", "--duration", "2", "--foxglove", f"127.0.0.1:{port}"], tmp_path, domain)
+        try:
+            runs = asyncio.run(two_runs())
+            out, err = demo.communicate(timeout=240)
+        finally:
+            demo.kill()
+    assert demo.returncode == 0, err
+    for index, (seen, b) in enumerate(zip(runs, ("0", "0.3")), start=1):
+        label = json.loads(seen["messages"]["/nni/run"][0][1])
+        assert (label["run"], label["case"], label["deployment"], label["b"]) == (index, "kundur_two_area",
+                                                                                  "composed", float(b)), label
+        recording = tmp_path / f"kundur_two_area_bus_fault_b{b}.mcap"
+        for topic in topics - {"/nni/run"}:
+            got = [data for _, data in seen["messages"].get(topic, [])]
+            assert is_subsequence(got, recorded(recording, topic)), (b, topic, len(got))
+        bridge = (tmp_path / "logs" / recording.stem / "foxglove_bridge.log").read_text()
+        counts = json.loads(bridge.split("foxglove_bridge counts: ", 1)[1].splitlines()[0])
+        assert counts["foreign"] == {}
+        assert all(counts["counts"][topic] == len(recorded(recording, topic)) for topic in topics - {"/nni/run"})
+
+
+@pytest.mark.parametrize("address, expected", [
+    ("nohost:abc", "a Foxglove server address is [HOST:]PORT"),
+    ("127.0.0.1:70000", "a Foxglove server address is [HOST:]PORT"),
+    ("0", "needs a port a client can be told"),
+])
+@pytest.mark.parametrize("case", [[], ["--case", "kundur_two_area"]], ids=["smib", "network"])
+def test_a_bad_foxglove_address_is_one_line_and_starts_nothing(tmp_path, address, expected, case):
+    out = tmp_path / "out"
+    done = subprocess.run([str(DEMO), *case, "--foxglove", address, "--out", str(out)], env=ros_env(fresh_domain_id()),
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and done.stdout == ""
+    assert len(done.stderr.splitlines()) == 1 and expected in done.stderr, done.stderr
+    assert not out.exists()
+
+
+def test_a_port_in_use_stops_the_demo_with_the_bridge_s_reason(tmp_path):
+    domain = fresh_domain_id()
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        done = subprocess.run([str(DEMO), "--foxglove", f"127.0.0.1:{port}", "--b", "0.3", "--duration", "2",
+                               "--out", str(tmp_path), "--domain-id", str(domain)], env=ros_env(domain),
+                              capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1 and "Address already in use" in done.stderr, done.stderr
+    assert not list(tmp_path.glob("*.mcap")), "no recording of a run that did not start"
