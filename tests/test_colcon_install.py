@@ -82,7 +82,7 @@ def test_install_layout(workspace):
     assert (install / "nni_battery_controller" / "share" / "nni_battery_controller" / "launch"
             / "closed_loop.launch.py").is_file()
     for package, config in (("nni_plant_sim", "plant.yaml"), ("nni_battery_controller", "controller.yaml"),
-                            ("nni_msgs_adapter", "mcap_logger.yaml")):
+                            ("nni_msgs_adapter", "mcap_logger.yaml"), ("nni_msgs_adapter", "foxglove_bridge.yaml")):
         assert (install / package / "share" / package / "config" / config).is_file()
 
 
@@ -178,7 +178,8 @@ def test_launch_file_matches_the_installed_nodes(workspace):
                for call in ast.walk(tree) if isinstance(call, ast.Call) and getattr(call.func, "id", "") == "Node"]
     assert {(n["package"], n["executable"]) for n in started} == {
         ("nni_plant_sim", "plant_node"), ("nni_battery_controller", "controller_node"),
-        ("nni_msgs_adapter", "mcap_logger"), ("nni_msgs_adapter", "c37118_client")}
+        ("nni_msgs_adapter", "mcap_logger"), ("nni_msgs_adapter", "c37118_client"),
+        ("nni_msgs_adapter", "foxglove_bridge")}
     for node in started:
         assert os.access(resolve_executable(env, node["package"], node["executable"]), os.X_OK)
     handlers = [call for call in ast.walk(tree) if isinstance(call, ast.Call)

@@ -25,7 +25,7 @@ from nni_msgs_adapter.ros.defaults import config_path
 #: Importing these must read no config file (each used to, through its parameter table).
 MODULES = ("nni_plant_sim.plant_node", "nni_battery_controller.controller_node", "nni_battery_controller.demo_command",
            "nni_battery_controller.simulate_command", "nni_battery_controller.options", "nni_msgs_adapter.recording.mcap_logger",
-           "nni_msgs_adapter.viewing.rerun_bridge", "nni_plant_sim.plant_config", "nni_battery_controller.controller_config")
+           "nni_msgs_adapter.viewing.rerun_bridge", "nni_msgs_adapter.viewing.foxglove_bridge", "nni_plant_sim.plant_config", "nni_battery_controller.controller_config")
 
 #: Keys of a demo summary that depend on the wall clock or on the output name, not on the run's values.
 WALL_CLOCK = ("recording", "wall_time_s", "latency_ms")

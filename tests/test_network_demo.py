@@ -610,3 +610,23 @@ def test_the_launch_file_passes_the_c37118_stream_to_the_network_plant(network_l
     assert network_launch.network_nodes({})[-1]["parameters"]["pmu_port"] == -1, "no stream unless asked for"
     with pytest.raises(ValueError, match="pmu_port and pmu_idcode take integers, got 'any'"):
         network_launch.network_nodes({"pmu_port": "any"})
+
+
+def test_the_launch_file_streams_to_foxglove_on_request(network_launch):
+    nodes = network_launch.network_nodes({"case": "kundur_two_area", "foxglove": "true",
+                                          "foxglove_address": "0.0.0.0:9000", "battery_limit_pu": ".inf"})
+    kinds = [(n["package"], n["executable"]) for n in nodes]
+    assert kinds == [("nni_msgs_adapter", "mcap_logger"), *[("nni_battery_controller", "controller_node")] * 4,
+                     ("nni_msgs_adapter", "foxglove_bridge"), ("nni_plant_sim", "network_plant_node")]
+    bridge, plant = nodes[5]["parameters"], nodes[-1]["parameters"]
+    assert bridge["address"] == "0.0.0.0:9000"
+    assert json.loads(bridge["run_label"])["case"] == "kundur_two_area"
+    assert plant["wait_for_subscribers"] == 3, "the controller, the logger and the bridge on each pmu"
+    assert all(node["env"] == {"NNI_DDS_PARTICIPANTS": "7"} for node in nodes), "logger, plant, bridge, 4"
+    module = importlib.import_module(console_script_module("foxglove_bridge"))
+    assert set(bridge) <= {spec.name for spec in module.parameters()}
+    assert "foxglove_bridge" not in [n["executable"] for n in network_launch.network_nodes({})], "off by default"
+    with pytest.raises(ValueError, match="foxglove takes true or false, got 'yes please'"):
+        network_launch.network_nodes({"foxglove": "yes please"})
+    with pytest.raises(ValueError, match="foxglove_address: a Foxglove server address"):
+        network_launch.network_nodes({"foxglove": "true", "foxglove_address": "here"})

@@ -32,6 +32,7 @@ ROS_SIDE = {
     "nni_msgs_adapter.recording.mcap_logger": "a node",
     "nni_msgs_adapter.recording.replay_node": "a node",
     "nni_msgs_adapter.viewing.rerun_bridge": "a node",
+    "nni_msgs_adapter.viewing.foxglove_bridge": "a node",
     "nni_msgs_adapter.c37118.client_node": "a node",
     # Decoding recorded CDR goes through the contract's message conversions.
     "nni_msgs_adapter.recording.runs": "reads recorded messages with the contract",
@@ -47,6 +48,7 @@ ROS_SIDE = {
     "nni_battery_controller.demo_common": "the nodes' summary and count line prefixes",
     "nni_battery_controller.smib_demo": "the demo, on demo_common",
     "nni_battery_controller.network_demo": "the network demo, on demo_common",
+    "nni_battery_controller.demo_foxglove": "the demos' Foxglove bridge, by the node's own constants",
 }
 
 

@@ -26,7 +26,7 @@ import pytest
 from rosproc import fresh_domain_id, ros_env
 
 SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "sros2_keystore"
-NODES = ("plant", "controller", "mcap_logger", "rerun_bridge", "c37118_client")
+NODES = ("plant", "controller", "mcap_logger", "rerun_bridge", "c37118_client", "foxglove_bridge")
 ENCLAVE_FILES = {"key.pem", "cert.pem", "identity_ca.cert.pem", "permissions_ca.cert.pem", "governance.p7s",
                  "permissions.p7s", "permissions.xml"}
 DOMAIN = 42
@@ -136,10 +136,10 @@ def test_only_the_controller_commands_the_battery_and_only_the_plant_publishes_m
     for topic, expected in publishers.items():
         assert allowed(table, "publish", f"rt{namespace}/{topic}") == expected, topic
     assert allowed(table, "publish", "rt/clock") == {"/nni/plant"}
-    subscribers = {"battery/command": {"/nni/plant", "/nni/mcap_logger"},
-                   "pmu": {"/nni/controller", "/nni/mcap_logger"},
-                   "c37118/pmu": {"/nni/controller", "/nni/mcap_logger"},
-                   "plant/state": {"/nni/mcap_logger", "/nni/rerun_bridge"}}
+    recorders = {"/nni/mcap_logger", "/nni/foxglove_bridge"}  # they read every contract topic, publish none
+    subscribers = {"battery/command": {"/nni/plant", *recorders}, "pmu": {"/nni/controller", *recorders},
+                   "c37118/pmu": {"/nni/controller", *recorders},
+                   "plant/state": {*recorders, "/nni/rerun_bridge"}}
     for topic, expected in subscribers.items():
         assert allowed(table, "subscribe", f"rt{namespace}/{topic}") == expected, topic
     # A node serves its own parameter services and nobody else's.

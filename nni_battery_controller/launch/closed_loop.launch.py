@@ -16,7 +16,9 @@ plant's PMU as an IEEE C37.118.2 stream on that TCP port of ``pmu_host``
 feeds the controller through that stream (on port 4712 when ``pmu_port`` gives
 none; 0, a port the launch cannot learn, is refused) and a ``c37118_client``
 node (as ``nni-demo --measurements c37118``; the rate must be one C37.118
-allows). All topics are relative, so the namespace
+allows). ``foxglove:=true`` adds a ``foxglove_bridge`` node streaming every loop topic live over the Foxglove
+WebSocket protocol at ``foxglove_address`` (127.0.0.1:8765 by default; the plant waits for it too). All topics
+are relative, so the namespace
 argument puts one generator's loop under /<namespace>. With ``duration_s > 0``
 the launch shuts down when the plant exits: the controller and the logger get
 SIGINT, and the logger finishes the recording.
@@ -42,7 +44,7 @@ from launch.events import Shutdown
 from launch.substitutions import EnvironmentVariable, LaunchConfiguration
 from launch_ros.actions import Node
 
-from nni_battery_controller import demo_c37118
+from nni_battery_controller import demo_c37118, demo_foxglove
 from nni_msgs_adapter.ros.processes import parameter_text
 from nni_msgs_adapter.ros.defaults import load_defaults
 
@@ -62,6 +64,7 @@ CONFIG = {
     "plant": ("nni_plant_sim", "plant.yaml", "plant"),
     "controller": ("nni_battery_controller", "controller.yaml", "controller"),
     "mcap_logger": ("nni_msgs_adapter", "mcap_logger.yaml", "mcap_logger"),
+    "foxglove_bridge": ("nni_msgs_adapter", "foxglove_bridge.yaml", "foxglove_bridge"),
 }
 
 
@@ -85,9 +88,12 @@ def launched_nodes(values: dict) -> dict:
     ``measurements`` c37118 the client node too (ValueError for a ``measurements`` or port that cannot be)."""
     measurements = values["measurements"]
     port, stream = demo_c37118.launch_stream(measurements, values["pmu_port"], values["pmu_host"])
+    bridge = demo_foxglove.launch_bridge(values["foxglove"], values["foxglove_address"], {
+        "b": values["battery_limit_pu"], "law": values["law"], "scenario": values["scenario"], "mode": values["mode"]})
     plant = {**{name: values[name] for name in (*PLANT_ARGUMENTS, *MODEL_ARGUMENTS)},
              "battery_rating_pu": values["battery_limit_pu"], "hold_until_released": True,
-             "wait_for_subscribers": demo_c37118.plant_readers(measurements, 2),  # the controller and the logger
+             # the controller and the logger, and the Foxglove bridge when there is one
+             "wait_for_subscribers": demo_c37118.plant_readers(measurements, 2, bridge is not None),
              **stream}
     nodes = {
         "plant": plant,
@@ -95,6 +101,8 @@ def launched_nodes(values: dict) -> dict:
                        "sample_rate_hz": values["pmu_rate_hz"], **demo_c37118.controller_parameters(measurements)},
         "mcap_logger": {name: values[name] for name in LOGGER_ARGUMENTS},
     }
+    if bridge is not None:
+        nodes["foxglove_bridge"] = bridge
     if measurements == "c37118":  # it connects once the controller and the logger read its c37118/pmu
         nodes["c37118_client"] = demo_c37118.client_parameters(port, values["mode"], 2, (),
                                                                demo_c37118.client_host(values["pmu_host"]),
@@ -113,6 +121,8 @@ def generate_launch_description():
     def setup(context):
         values = {name: yaml.safe_load(context.launch_configurations[name]) for name in names}
         values["pmu_host"] = context.launch_configurations["pmu_host"]  # an address, text whatever YAML makes of it
+        for name in ("foxglove", "foxglove_address"):
+            values[name] = context.launch_configurations[name]
         given = launched_nodes(values)
         namespace = context.launch_configurations["namespace"]
         key_env, remove_key = run_key_environment()  # every node's: each seals what it sends, checks what it reads
@@ -125,18 +135,28 @@ def generate_launch_description():
         logger = Node(package="nni_msgs_adapter", executable="mcap_logger", name="mcap_logger", namespace=namespace,
                       ros_arguments=["--enclave", "/nni/mcap_logger"],
                       parameters=[config_file("mcap_logger"), given["mcap_logger"]], additional_env=key_env)
-        client = [Node(package="nni_msgs_adapter", executable="c37118_client", name="c37118_client",
-                       namespace=namespace, ros_arguments=["--enclave", "/nni/c37118_client"],
-                       parameters=[given["c37118_client"]], additional_env=key_env)] if "c37118_client" in given else []
+        # The C37.118 client and the Foxglove bridge, when asked for.
+        extra = {}
+        if "c37118_client" in given:
+            extra["c37118_client"] = Node(
+                package="nni_msgs_adapter", executable="c37118_client", name="c37118_client", namespace=namespace,
+                ros_arguments=["--enclave", "/nni/c37118_client"], parameters=[given["c37118_client"]],
+                additional_env=key_env)
+        if "foxglove_bridge" in given:
+            extra["foxglove_bridge"] = Node(
+                package="nni_msgs_adapter", executable="foxglove_bridge", name="foxglove_bridge", namespace=namespace,
+                ros_arguments=["--enclave", "/nni/foxglove_bridge"],
+                parameters=[config_file("foxglove_bridge"), given["foxglove_bridge"]], additional_env=key_env)
         prefix = "/".join(("", *filter(None, (namespace.strip("/"),))))
         started = [(controller, {f"{prefix}/controller": expected_parameters(controller_node_parameters(),
                                                                               given["controller"])}),
                    (plant, {f"{prefix}/plant": expected_parameters(plant_node_parameters(), given["plant"])}),
                    # stated, nothing to compare: they have read the run's key, removed once every node has
-                   (logger, {f"{prefix}/mcap_logger": {}}), *((node, {f"{prefix}/c37118_client": {}}) for node in client)]
+                   (logger, {f"{prefix}/mcap_logger": {}}),
+                   *((node, {f"{prefix}/{name}": {}}) for name, node in extra.items())]
         # The plant runs once both nodes stated what they were given; the run is over when it exits
         # (duration_s > 0): stop the others, finish the recording.
-        return [*remove_key, *readback_release(started, plant, key_env), logger, controller, *client, plant,
+        return [*remove_key, *readback_release(started, plant, key_env), logger, controller, *extra.values(), plant,
                 RegisterEventHandler(OnProcessExit(target_action=plant, on_exit=[
                     EmitEvent(event=Shutdown(reason="the plant finished its run"))]))]
 
@@ -149,6 +169,11 @@ def generate_launch_description():
         DeclareLaunchArgument("measurements", default_value="ros",
                               description="ros: the controller reads the plant's pmu; c37118: the plant's C37.118.2 "
                                           "stream on pmu_port (4712 if none), through the c37118_client node"),
+        DeclareLaunchArgument("foxglove", default_value="false",
+                              description="true: a foxglove_bridge node streams every loop topic live over the "
+                                          "Foxglove WebSocket protocol at foxglove_address"),
+        DeclareLaunchArgument("foxglove_address", default_value="127.0.0.1:8765",
+                              description="[HOST:]PORT of the Foxglove server (loopback unless a host is named)"),
         DeclareLaunchArgument("use_security", default_value="false",
                               description="true: SROS2 (Enforce), each node in its enclave /nni/<node> of the "
                                           "keystore made by scripts/sros2_keystore; ROS 2 Jazzy installs only"),

@@ -45,6 +45,7 @@ import yaml
 
 from nni_battery_controller.demo_c37118 import client_host, client_parameters, launch_stream, plant_readers
 from nni_battery_controller.demo_c37118 import controller_parameters as measurement_topic
+from nni_battery_controller.demo_foxglove import launch_bridge
 from nni_battery_controller.controller_config import parameters as controller_node_parameters
 from nni_battery_controller.network_deployment import (
     battery_limits,
@@ -83,6 +84,9 @@ RUN_ARGUMENTS = {
     "output_path": ("network.mcap", "the MCAP recording of every namespace"),
     "measurements": ("ros", "how the controllers get the measurements: ros (the plant's pmu topics) or c37118 (the "
                      "plant's IEEE C37.118.2 stream on pmu_port, 4712 if none, read by the c37118_client node)"),
+    "foxglove": ("false", "true: a foxglove_bridge node streams every loop topic live over the Foxglove WebSocket "
+                          "protocol at foxglove_address"),
+    "foxglove_address": ("127.0.0.1:8765", "[HOST:]PORT of the Foxglove server (loopback unless a host is named)"),
 }
 #: The network plant node's disturbance parameters, the launch arguments of the same names.
 SCENARIO_ARGUMENTS = ("scenario", *SCENARIO_PARAMETERS)
@@ -93,6 +97,7 @@ PLANT = ("nni_plant_sim", "network_plant_node")
 CONTROLLER = ("nni_battery_controller", "controller_node")
 LOGGER = ("nni_msgs_adapter", "mcap_logger")
 CLIENT = ("nni_msgs_adapter", "c37118_client")
+FOXGLOVE = ("nni_msgs_adapter", "foxglove_bridge")
 
 
 def _text(value) -> str:
@@ -183,7 +188,7 @@ def stream_values(values: dict) -> dict:
 def network_nodes(given: dict) -> list[dict]:
     """The nodes a launch with these argument texts creates: ``package``, ``executable``, ``name``,
     ``namespace``, ``parameters`` (one dict), ``env`` (what the process gets beside the launch's environment);
-    the logger first, then the controllers, the plant last.
+    the logger first, then the controllers, the Foxglove bridge and the C37.118 client if asked for, the plant last.
 
     ValueError (or CliError) naming a bad argument: an unknown case, a bus, branch or machine not in it, an
     argument of another scenario, K >= L, a bad ``gen_b`` word.
@@ -202,13 +207,18 @@ def network_nodes(given: dict) -> list[dict]:
     measurements, stream = values["measurements"], stream_values(values)
     port, client_stream = launch_stream(measurements, stream["pmu_port"], stream["pmu_host"])
     stream.update(client_stream)
+    bridge = launch_bridge(values["foxglove"], values["foxglove_address"], {
+        "case": case, "b": limits.tolist(), "law": law_name, "scenario": scenario["scenario"], "mode": values["mode"]})
     plant = {**plant_parameters(case, scenario, values["mode"], rate, float(_value(values["duration_s"])), limits,
-                                plant_readers(measurements, 2)), **stream}
+                                plant_readers(measurements, 2, bridge is not None)), **stream}
     nodes = [{"package": LOGGER[0], "executable": LOGGER[1], "name": "mcap_logger", "namespace": "",
               "parameters": {"output_path": values["output_path"]}}]
     nodes += [{"package": CONTROLLER[0], "executable": CONTROLLER[1], "name": "controller", "namespace": ns,
                "parameters": {**controller_parameters(net, i, limits[i], rate, law), **measurement_topic(measurements)}}
               for i, ns in enumerate(namespaces(net))]
+    if bridge is not None:
+        nodes.append({"package": FOXGLOVE[0], "executable": FOXGLOVE[1], "name": "foxglove_bridge", "namespace": "",
+                      "parameters": bridge})
     if measurements == "c37118":  # it connects once the controllers and the logger read each c37118/pmu
         nodes.append({"package": CLIENT[0], "executable": CLIENT[1], "name": "c37118_client", "namespace": "",
                       "parameters": client_parameters(port, values["mode"], 2, [f"/{ns}" for ns in namespaces(net)],
@@ -216,13 +226,13 @@ def network_nodes(given: dict) -> list[dict]:
     nodes.append({"package": PLANT[0], "executable": PLANT[1], "name": "network_plant", "namespace": "",
                   "parameters": plant})
     # Every process learns how many there are: beyond 32 (the ring's 54) their discovery is widened to cover them.
-    env = {PARTICIPANTS_ENV: str(participants(net, "separate", 2 + (measurements == "c37118")))}
+    env = {PARTICIPANTS_ENV: str(participants(net, "separate", 2 + (measurements == "c37118") + (bridge is not None)))}
     return [{**node, "env": env} for node in nodes]
 
 
 def readbacks(nodes: list[dict]) -> list[dict]:
     """Per node of :func:`network_nodes`: ``{its fully qualified name: the parameters it must state at start}``
-    (the plant and the controllers; nothing for the logger and the C37.118 client, which only have to have stated
+    (the plant and the controllers; nothing for the logger, the C37.118 client and the Foxglove bridge, which only have to have stated
     theirs: read the run's key, removed once every node has)."""
     tables = {CONTROLLER[1]: controller_node_parameters(), PLANT[1]: plant_node_parameters()}
     return [{"/".join(("", *filter(None, (node["namespace"].strip("/"), node["name"])))):

@@ -84,3 +84,15 @@ def print_url(bridge, index: int) -> None:
 def stated(bridge) -> list:
     """The bridge's read-back entry (it has to have read the run's key before it is removed)."""
     return [] if bridge is None else [(bridge, {"/foxglove_bridge": {}})]
+
+
+def launch_bridge(enabled: str, address: str, label: dict) -> dict | None:
+    """The Foxglove bridge's parameters for the launch arguments ``foxglove`` (true/false) and
+    ``foxglove_address`` (None when off); ValueError (one line) for a word that is neither or a bad address."""
+    word = str(enabled).strip().lower()
+    if word not in ("true", "false"):
+        raise ValueError(f"foxglove takes true or false, got {enabled!r}")
+    if word == "false":
+        return None
+    host, port = parse_server_address(str(address), what="foxglove_address: a Foxglove server address")
+    return {"address": address_text(host, port), "run_label": json.dumps(label)}

@@ -69,11 +69,12 @@ def parameters() -> tuple[Spec, ...]:
 
 
 def run_label(text: str) -> dict:
-    """The ``run_label`` parameter as a dict; ValueError (one line) if it is not a JSON object."""
+    """The ``run_label`` parameter as a dict; ValueError (one line) if it is not a JSON object. An unlimited
+    battery (Python's ``Infinity``) becomes the word ``"inf"``: what a client gets is strict JSON."""
     if not text:
         return {}
     try:
-        value = json.loads(text)
+        value = json.loads(text, parse_constant={"Infinity": "inf", "-Infinity": "-inf", "NaN": "nan"}.get)
     except json.JSONDecodeError as exc:
         raise ValueError(f"run_label must be a JSON object: {exc}") from None
     if not isinstance(value, dict):
