@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import socket
 import subprocess
 import sys
@@ -26,6 +27,17 @@ from rosproc import busy_processes, fresh_domain_id, ros_env
 pytestmark = pytest.mark.ros
 
 DEMO = Path(sys.executable).parent / "nni-demo"
+LAYOUTS = Path(__file__).resolve().parent.parent / "docs" / "foxglove"
+#: The panel types the layouts use, and the settings each may have with their types (Foxglove's Plot,
+#: Diagnostics summary and Raw Messages panels, as their documentation describes them).
+PANEL_SETTINGS = {
+    "Plot": {"title": str, "paths": list, "showLegend": bool, "legendDisplay": str, "showXAxisLabels": bool,
+             "showYAxisLabels": bool, "isSynced": bool, "xAxisVal": str, "xAxisPath": dict},
+    "DiagnosticSummary": {"topicToRender": str, "pinnedIds": list, "hardwareIdFilter": str, "sortByLevel": bool},
+    "RawMessages": {"topicPath": str, "diffEnabled": bool, "diffMethod": str, "diffTopicPath": str,
+                    "showFullMessageForDiff": bool},
+}
+_STEP = re.compile(r"\.(@negative|[A-Za-z_]\w*)|\[(\d+|:)\]")
 SMIB_TOPICS = {"/pmu": "sensor_msgs/msg/JointState", "/battery/command": "sensor_msgs/msg/JointState",
                "/plant/state": "sensor_msgs/msg/JointState", "/controller/state": "sensor_msgs/msg/JointState",
                "/plant/invariant_set": "geometry_msgs/msg/PolygonStamped",
@@ -41,7 +53,7 @@ def free_port() -> int:
 def recorded(path: Path, topic: str) -> list[bytes]:
     """The CDR bytes of ``topic`` in the recording, in log order."""
     with path.open("rb") as stream:
-        return [message.data for _, channel, message in make_reader(stream).iter_messages(topics=[topic])]
+        return [message.data for _, _, message in make_reader(stream).iter_messages(topics=[topic])]
 
 
 def stream_typestore(channels: dict):
@@ -51,6 +63,45 @@ def stream_typestore(channels: dict):
         if channel["schemaEncoding"] == "ros2msg":
             store.register(get_types_from_msg(channel["schema"], channel["schemaName"]))
     return store
+
+
+def check_layout_reads(layout: dict, recording: Path) -> int:
+    """Every message path of ``layout`` resolves to numbers (or, for a topic alone, a topic) in the first
+    message of its topic in ``recording``, decoded with rosbags' Jazzy types; returns how many were checked."""
+    with recording.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+        types = {channel.topic: summary.schemas[channel.schema_id].name for channel in summary.channels.values()}
+    store = get_typestore(Stores.ROS2_JAZZY)
+    paths = [path for path in layout_paths(layout) if path != "/nni/run"]  # the live label, not recorded
+    for path in paths:
+        topic = max((t for t in types if path == t or path.startswith(t + ".")), key=len, default=None)
+        assert topic is not None, f"{path}: no such topic in {recording.name}"
+        rest = path[len(topic):]
+        assert "".join(m.group(0) for m in _STEP.finditer(rest)) == rest, f"{path}: not a message path"
+        values = [store.deserialize_cdr(recorded(recording, topic)[0], types[topic])]
+        for field, index in (m.groups() for m in _STEP.finditer(rest)):
+            if field == "@negative":
+                values = [-v for v in values]
+            elif field:
+                values = [getattr(v, field) for v in values]
+            elif index == ":":
+                values = [item for v in values for item in v]
+            else:
+                assert all(int(index) < len(v) for v in values), f"{path}: index out of range"
+                values = [v[int(index)] for v in values]
+        if rest:
+            assert values and all(isinstance(v, float) for v in values), (path, values[:3])
+    return len(paths)
+
+
+def layout_paths(layout: dict) -> list[str]:
+    """The message paths a layout's panels read (series, x paths, topics), read from the JSON as Foxglove would."""
+    found = []
+    for config in layout["configById"].values():
+        found += [series["value"] for series in config.get("paths", [])]
+        found += [config["xAxisPath"]["value"]] if "xAxisPath" in config else []
+        found += [config[key] for key in ("topicToRender", "topicPath") if key in config]
+    return found
 
 
 def start_demo(args: list[str], out: Path, domain: int) -> subprocess.Popen:
@@ -116,6 +167,8 @@ def test_a_client_sees_the_smib_run_live_as_recorded_and_a_hostile_one_disturbs_
     assert hostile[-1][0] == "closed", hostile
     summary = json.loads((tmp_path / "summary.json").read_text())["scenarios"][0]
     assert summary["samples"] == 200 and summary["max_abs_battery_power_pu"] <= 0.3
+    # The shipped layout reads this recording's topics and fields by name.
+    assert check_layout_reads(json.loads((LAYOUTS / "nni_smib.json").read_text()), recording) == 14
 
 
 def test_a_client_sees_every_run_of_a_composed_network_live(tmp_path):
@@ -149,6 +202,7 @@ def test_a_client_sees_every_run_of_a_composed_network_live(tmp_path):
         counts = json.loads(bridge.split("foxglove_bridge counts: ", 1)[1].splitlines()[0])
         assert counts["foreign"] == {}
         assert all(counts["counts"][topic] == len(recorded(recording, topic)) for topic in topics - {"/nni/run"})
+    assert check_layout_reads(json.loads((LAYOUTS / "nni_kundur_two_area.json").read_text()), recording) == 28
 
 
 @pytest.mark.parametrize("address, expected", [
@@ -178,3 +232,41 @@ def test_a_port_in_use_stops_the_demo_with_the_bridge_s_reason(tmp_path):
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and "Address already in use" in done.stderr, done.stderr
     assert not list(tmp_path.glob("*.mcap")), "no recording of a run that did not start"
+
+
+@pytest.mark.parametrize("name, generators", [("nni_smib", 0), ("nni_kundur_two_area", 4), ("nni_ieee39", 10)])
+def test_the_shipped_layouts_are_what_the_layout_command_writes_and_use_known_panels_only(tmp_path, name,
+                                                                                          generators):
+    written = tmp_path / f"{name}.json"
+    done = subprocess.run([sys.executable, "-m", "nni_msgs_adapter.viewing.foxglove_layout", "--generators",
+                           str(generators), str(written)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stdout == f"wrote {written}\n", done.stderr
+    shipped = json.loads((LAYOUTS / f"{name}.json").read_text())
+    assert json.loads(written.read_text()) == shipped, "docs/foxglove is stale: rewrite it with the command"
+    assert set(shipped) == {"configById", "globalVariables", "userNodes", "playbackConfig", "layout"}
+    for panel_id, config in shipped["configById"].items():
+        kind = panel_id.split("!")[0]
+        assert kind in PANEL_SETTINGS and set(config) <= set(PANEL_SETTINGS[kind]), (panel_id, set(config))
+        assert all(isinstance(config[key], PANEL_SETTINGS[kind][key]) for key in config), panel_id
+        if kind == "Plot":
+            assert config["xAxisVal"] in ("timestamp", "custom") and ("xAxisPath" in config) == (
+                config["xAxisVal"] == "custom"), panel_id
+            assert config["paths"] and all(set(series) == {"value", "enabled", "timestampMethod", "label"}
+                                           and series["timestampMethod"] in ("receiveTime", "headerStamp")
+                                           for series in config["paths"]), panel_id
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    assert sorted(leaves(shipped["layout"])) == sorted(shipped["configById"]), "each panel placed once"
+    per_generator = {path.split("/")[1] for path in layout_paths(shipped) if path.startswith("/gen")}
+    assert per_generator == {f"gen{k}" for k in range(1, generators + 1)}
+
+
+@pytest.mark.parametrize("args, message", [(["--generators", "-1", "x.json"], "--generators must be 0"),
+                                           (["/no/such/folder/x.json"], "output folder /no/such/folder does not exist")])
+def test_the_layout_command_refuses_bad_input_in_one_line(tmp_path, args, message):
+    done = subprocess.run([sys.executable, "-m", "nni_msgs_adapter.viewing.foxglove_layout", *args], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and len(done.stderr.splitlines()) == 1 and message in done.stderr, done.stderr
+    assert list(tmp_path.iterdir()) == []

@@ -33,6 +33,7 @@ ROS_SIDE = {
     "nni_msgs_adapter.recording.replay_node": "a node",
     "nni_msgs_adapter.viewing.rerun_bridge": "a node",
     "nni_msgs_adapter.viewing.foxglove_bridge": "a node",
+    "nni_msgs_adapter.viewing.foxglove_layout": "the layouts name the contract's topics and signal order",
     "nni_msgs_adapter.c37118.client_node": "a node",
     # Decoding recorded CDR goes through the contract's message conversions.
     "nni_msgs_adapter.recording.runs": "reads recorded messages with the contract",
