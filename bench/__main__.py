@@ -35,7 +35,9 @@ Each table sets a measurement beside a baseline taken in the same run:
 11. the contingency screen (``nni-simulate --case --screen``): IEEE 39's bus
     faults x 4 b serial beside a 2-worker LocalCluster (speed-up, task
     overhead share), contingencies per second for IEEE 39, 118 and 300, the
-    full IEEE 39 N-1 screen, and one contingency's bisection beside ANDES'.
+    full IEEE 39 N-1 screen, and one contingency's bisection beside ANDES';
+12. the SMIB lockstep loop with a Foxglove bridge and a client that never
+    reads, beside the same loop alone (alternating rounds).
 
 Node processes are started exactly as ``nni-demo`` starts them; discovery stays
 on localhost (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) in a ROS domain of the
@@ -52,6 +54,7 @@ import time
 from pathlib import Path
 
 from bench.command_auth import bench_command_auth
+from bench.foxglove import bench_foxglove
 from bench.common import NETWORK_RATE_HZ, ROOT
 from bench.c37118_loop import bench_c37118_loop
 from bench.c37118_server import FRAMES as C37118_SERVER_FRAMES, bench_c37118_server
@@ -72,7 +75,7 @@ from nni_msgs_adapter.ros.processes import ChildError
 ROUNDS = 3
 #: What --only selects (all by default).
 BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime", "network-profile", "c37118-loop",
-              "command-auth", "c37118-server", "screening")
+              "command-auth", "c37118-server", "screening", "foxglove")
 
 
 def parse_args(argv=None):
@@ -125,6 +128,8 @@ def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates, domain_i
             env, C37118_SERVER_FRAMES // 10 if quick else C37118_SERVER_FRAMES, 5.0 if quick else duration_s)
     if "screening" in only:
         results["screening"] = bench_screening(quick, andes_python)
+    if "foxglove" in only:
+        results["foxglove"] = bench_foxglove(env, log_root, 10.0 if quick else 30.0, 3 if quick else 5)
     return results
 
 

@@ -131,11 +131,14 @@ def pingpong(env: dict, log_dir: Path, mode: str, rate_hz: float = 100.0, durati
 
 
 def closed_loop(env: dict, log_dir: Path, mode: str, rate_hz: float, duration_s: float,
-                measurements: str = "ros") -> dict:
+                measurements: str = "ros", foxglove_port: int | None = None, foxglove_client: str = "stalled") -> dict:
     """Plant and controller nodes as ``nni-demo`` starts them; the plant's final diagnostics values.
 
     ``measurements`` c37118: the controller fed through the plant's C37.118 stream and the client node, as
     ``nni-demo --measurements c37118`` feeds it (the plant waits for the client, not for a pmu reader).
+    ``foxglove_port``: a Foxglove bridge serves the loop there (the plant waits for it as a reader) to a client
+    subscribed to every channel (:mod:`bench.stalled_client`) that never reads (``foxglove_client`` stalled)
+    or reads everything (``reading``).
     Read from the JSON line the plant prints at exit, not over DDS: a listener in
     this process had to discover every new plant before its run ended, and
     after a short lockstep run (0.2 s) it sometimes had not (measured).
@@ -145,13 +148,21 @@ def closed_loop(env: dict, log_dir: Path, mode: str, rate_hz: float, duration_s:
     from nni_plant_sim.plant_node import SUMMARY_PREFIX
 
     with children(env, log_dir) as procs:
+        if foxglove_port is not None:
+            bridge = procs.start_node("foxglove_bridge", "nni_msgs_adapter.viewing.foxglove_bridge",
+                                      {"address": f"127.0.0.1:{foxglove_port}", "discovery_period_s": 0.1})
+            bridge.wait_for_line("foxglove bridge serving on", 60.0)
+            procs.start("foxglove_client", [sys.executable, "-m", "bench.stalled_client",
+                                            f"ws://127.0.0.1:{foxglove_port}", str(120.0 + 2 * duration_s),
+                                            *(["--read"] if foxglove_client == "reading" else [])])
         procs.start_node("controller", "nni_battery_controller.controller_node",
                          {"battery_limit_pu": LOOP_BATTERY_LIMIT_PU, "sample_rate_hz": rate_hz,
                           **demo_c37118.controller_parameters(measurements)})
         procs.start_node("plant", "nni_plant_sim.plant_node",
                          {"mode": mode, "duration_s": duration_s, "pmu_rate_hz": rate_hz,
-                          # the controller on pmu; through the stream nobody reads pmu: the plant waits for the client
-                          "wait_for_subscribers": 0 if measurements == "c37118" else 1,
+                          # the controller on pmu (and the Foxglove bridge); through the stream nobody reads pmu:
+                          # the plant waits for the client
+                          "wait_for_subscribers": 0 if measurements == "c37118" else 1 + (foxglove_port is not None),
                           **demo_c37118.plant_parameters(measurements)})
         if measurements == "c37118":
             demo_c37118.start_client(procs, StreamWatch(procs["plant"]).listening(announce=False), measurements,

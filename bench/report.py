@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from bench.c37118_loop import c37118_loop_section
 from bench.command_auth import command_auth_section
+from bench.foxglove import foxglove_section
 from bench.c37118_server import c37118_server_section
 from bench.latency import latency_section, share_section
 from bench.lockstep import lockstep_section
@@ -19,7 +20,7 @@ SECTIONS = (("latency", latency_section), ("controller-share", share_section), (
             ("roa", roa_section), ("network-lockstep", network_lockstep_section),
             ("network-realtime", network_realtime_section), ("network-profile", network_profile_section),
             ("c37118-loop", c37118_loop_section), ("command-auth", command_auth_section),
-            ("c37118-server", c37118_server_section), ("screening", screening_section))
+            ("c37118-server", c37118_server_section), ("screening", screening_section), ("foxglove", foxglove_section))
 
 
 def report(command: str, machine: dict, quick: bool, results: dict, started: str, wall_s: float) -> str:
@@ -27,8 +28,8 @@ def report(command: str, machine: dict, quick: bool, results: dict, started: str
     lines = ["# Benchmarks", "",
              f"Written by `{command}` on {started} (whole run {wall_s:.0f} s of wall time). "
              "Every table sets a measurement beside a baseline taken in the same run; the targets are issue 5's "
-             "(sections 1-3), issue 23's (sections 4-5; issue 14 built them), issue 22's (sections 8 and 10) and issue 33's "
-             "(section 11).", ""]
+             "(sections 1-3), issue 23's (sections 4-5; issue 14 built them), issue 22's (sections 8 and 10), issue 33's "
+             "(section 11) and issue 34's (section 12).", ""]
     if quick:
         lines += ["> **`--quick` run**: shortened durations for development, not the numbers to publish.", ""]
     lines += machine_section(machine)

@@ -13,9 +13,10 @@ MACHINE = {"cpu": "test CPU", "cores": 2, "kernel": "6.1", "python": "3.11", "pa
 HEADINGS = ["## 1. Closed-loop latency", "### 1b. The controller's share", "## 2. Lockstep throughput",
             "## 3. Region-of-attraction sweep", "## 4. Network lockstep throughput", "## 5. Network realtime",
             "## 6. Memory per controller", "## 8. Latency the C37.118 path adds to the loop",
-            "## 9. Authenticated battery commands",
+            "## 9. Authenticated commands and measurements",
             "## 10. C37.118 PMU server: frames per second and reporting latency",
-            "## 11. Contingency screen: serial beside a 2-worker LocalCluster"]
+            "## 11. Contingency screen: serial beside a 2-worker LocalCluster",
+            "## 12. The Foxglove bridge and a client that never reads"]
 
 
 def latency_row(rate_hz: float, p50_ratio: float, misses: int = 0) -> dict:
@@ -85,7 +86,16 @@ def results(latency_ratio: float = 1.2, network_ratio: float = 1.8) -> dict:
         "command-auth": COMMAND_AUTH,
         "c37118-server": c37118_server_result(3.0),
         "screening": screening_result(40.0, 0.5),
+        "foxglove": foxglove_result(),
     }
+
+
+def foxglove_result(stalled: float = 0.9, reading: float = 1.5, spread: float = 1.2) -> dict:
+    """Section 12's result: rounds' throughputs chosen so that the ratios are ``reading`` and ``stalled``."""
+    return {"rounds": 1, "sim_s": 30.0, "rate_hz": 100.0, "ratios": {"reading": [reading], "stalled": [stalled]},
+            "ratio": {"reading": reading, "stalled": stalled}, "spread": spread,
+            "throughput": {"alone": 24.0, "reading": 24.0 / reading, "stalled": 24.0 / reading / stalled},
+            "latency_p50_ms": {"alone": 0.25, "reading": 0.36, "stalled": 0.32}, "misses": 0}
 
 
 def screen_run(engine: str, workers: int, wall_s: float, compute_s: float, contingencies: int = 39) -> dict:
@@ -276,8 +286,8 @@ def test_the_c37118_path_is_judged_on_the_p50_it_adds_at_50_per_s(added_ms, verd
 
 def test_the_command_authentication_row_sets_sign_and_verify_beside_the_bare_publish():
     text = page({"command-auth": COMMAND_AUTH})
-    assert "median of 15 batches of 2000 commands" in text
-    assert ("| bare publish (µs) | sign (µs) | sealed publish (µs) | added by the seal (µs) | verify (µs) |"
+    assert "median of 15 batches of 2000 messages" in text
+    assert ("| message | bare publish (µs) | sign (µs) | sealed publish (µs) | added by the seal (µs) | verify (µs) |"
             in text)
     assert "| 12.50 | 3.25 | 16.00 | +3.50 | 4.50 |" in text
 
@@ -324,3 +334,12 @@ def test_the_screens_bisection_is_set_beside_andes_as_a_ratio():
     text = page({"screening": screening_result(40.0, 0.5, andes)})
     assert "ours 0.50 s (CCT 0.153" in text and "ANDES 2.0 60.0 s (10 runs" in text
     assert "ANDES / ours = **120x**" in text
+
+
+@pytest.mark.parametrize(("stalled", "words"), [(0.9, "0.90 (within the noise: it costs the loop nothing measurable)"),
+                                                (1.3, "1.30 (**beyond the noise**)")])
+def test_the_never_reading_client_is_judged_against_a_reading_one_and_the_noise(stalled, words):
+    text = page({"foxglove": foxglove_result(stalled=stalled)})
+    assert f"The never-reading client: {words}" in text
+    assert "| a client that never reads, beside one that reads | 16.0 / " in text
+    assert "Streaming itself: 1.50 (**beyond the noise**" in text

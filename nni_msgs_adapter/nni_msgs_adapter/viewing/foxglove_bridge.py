@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 import sys
 
 import foxglove
@@ -63,6 +64,8 @@ def parameters() -> tuple[Spec, ...]:
              0.05, 60.0, read_only=True),
         Spec("backlog", defaults["backlog"], "Messages queued per client; a slow client loses its oldest.", 16,
              1_000_000, read_only=True),
+        Spec("nice", defaults["nice"], "Added to the process's nice value at start: the bridge yields the CPU to "
+             "the loop's nodes (0: as they).", 0, 19, read_only=True),
         Spec("run_label", defaults["run_label"], f"The run on air, a JSON object, sent on {RUN_TOPIC} once a second.",
              read_only=True),
     )
@@ -94,6 +97,7 @@ class FoxgloveBridge(Node):
     def __init__(self, **kwargs):
         super().__init__("foxglove_bridge", **kwargs)
         self._values = values = declared_values(self, parameters())
+        os.nice(values["nice"])  # a viewer yields the CPU to the loop (bench section 12)
         self._label = run_label(values["run_label"])
         host, port = parse_server_address(values["address"], what="a Foxglove server address")
         self._key = command_auth.key_from_environment()
