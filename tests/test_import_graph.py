@@ -182,20 +182,12 @@ def test_each_form_of_import_is_an_edge_and_a_circle_is_named(tmp_path):
 LAYERS = ("nni_msgs_adapter", "nni_plant_sim", "nni_battery_controller", "bench")
 
 
-#: Modules that still import up the layers (issue 34: the Rerun bridge node loads its case to weigh the COI with
-#: the machines' inertias). The list only shrinks:
-#: a module that no longer imports up must leave it, and no other module may join it.
-NOT_YET_MOVED = {"nni_msgs_adapter.viewing.rerun_bridge"}
-
-
-def upward_imports(root: Path, package_dirs=PACKAGE_DIRS, layers=LAYERS, exempt=frozenset()) -> list[str]:
+def upward_imports(root: Path, package_dirs=PACKAGE_DIRS, layers=LAYERS) -> list[str]:
     """One line per import of a module from a package above the importer's, with its file and line."""
     modules = module_files(root, package_dirs)
     rank = {package: n for n, package in enumerate(layers)}
     lines = []
     for module, edges in sorted(import_graph(modules).items()):
-        if module in exempt:
-            continue
         for target, (path, line) in sorted(edges.items()):
             low, high = module.partition(".")[0], target.partition(".")[0]
             if rank[high] > rank[low]:
@@ -205,14 +197,8 @@ def upward_imports(root: Path, package_dirs=PACKAGE_DIRS, layers=LAYERS, exempt=
 
 
 def test_every_package_imports_only_those_below_it():
-    found = upward_imports(ROOT, exempt=NOT_YET_MOVED)
+    found = upward_imports(ROOT)
     assert not found, "\n".join(found)
-
-
-def test_the_modules_not_yet_moved_still_import_up():
-    """The exemptions are the work left, not a hiding place: each one still names a real upward import."""
-    upward = {line.split(" ", 1)[0] for line in upward_imports(ROOT)}
-    assert NOT_YET_MOVED <= upward, sorted(NOT_YET_MOVED - upward)
 
 
 def test_an_import_up_the_layers_is_named(tmp_path):

@@ -61,7 +61,8 @@ def network_run(tmp_path_factory, kundur) -> dict:
     with node_processes(tmp, fresh_domain_id()) as start:
         logger = start("logger", LOGGER, {"output_path": str(path), "discovery_period_s": 0.1,
                                           "run_metadata": json.dumps(metadata)})
-        bridge = start("bridge", BRIDGE, {"sink": "save", "path": str(live), "namespaces": NAMESPACES, "case": CASE})
+        bridge = start("bridge", BRIDGE, {"sink": "save", "path": str(live), "namespaces": NAMESPACES, "case": CASE,
+                                          "coi_weights": [float(m) for m in kundur.inertia_m], "f0_hz": kundur.f0_hz})
         for i, ns in enumerate(NAMESPACES):
             start(f"controller_{ns[1:]}", CONTROLLER, controller_parameters(kundur, i, B), ("-r", f"__ns:={ns}"))
         # Each pmu: its controller, the logger and the bridge.
@@ -171,13 +172,21 @@ def test_the_live_bridge_with_namespaces_shows_every_generator_as_the_replay_doe
     check_network_rrd(network_run["live"], counts, kundur, offline)
 
 
+WEIGHTS = [1.0, 2.0, 3.0, 4.0]
+
+
 @pytest.mark.parametrize("params, expected", [
-    ({"namespaces": NAMESPACES}, "namespaces needs case: the machines' inertias weigh the centre of inertia"),
-    ({"case": CASE}, "case 'kundur_two_area' needs namespaces (the generators to show)"),
-    ({"namespaces": ["/gen1", "/gen2"], "case": CASE},
-     "namespaces of case kundur_two_area are ['/gen1', '/gen2', '/gen3', '/gen4'] (the network plant's), "
-     "got ['/gen1', '/gen2']"),
-    ({"namespaces": NAMESPACES, "case": CASE, "f0_hz": 55.0}, "f0_hz 55: case kundur_two_area has f0 = 60 Hz"),
+    ({"namespaces": NAMESPACES, "coi_weights": WEIGHTS},
+     "namespaces needs case (the view's label) and coi_weights (the machines' inertias weigh the centre of inertia)"),
+    ({"namespaces": NAMESPACES, "case": CASE},
+     "namespaces needs case (the view's label) and coi_weights (the machines' inertias weigh the centre of inertia)"),
+    ({"case": CASE}, "case needs namespaces (the generators to show)"),
+    ({"coi_weights": WEIGHTS}, "coi_weights needs namespaces (the generators to show)"),
+    ({"namespaces": ["/gen1", "/gen3"], "case": CASE, "coi_weights": [1.0, 2.0]},
+     "namespaces are ['/gen1', '/gen2'] ... in case order (the network plant's), got ['/gen1', '/gen3']"),
+    ({"namespaces": NAMESPACES, "case": CASE, "coi_weights": [1.0, 2.0]}, "coi_weights has 2 values for 4 namespaces"),
+    ({"namespaces": NAMESPACES, "case": CASE, "coi_weights": [1.0, 2.0, -3.0, 4.0]},
+     "coi_weights must be positive and finite, got [1.0, 2.0, -3.0, 4.0]"),
 ])
 def test_the_bridge_refuses_namespaces_it_cannot_show_with_one_line(tmp_path, params, expected):
     with node_processes(tmp_path, fresh_domain_id()) as start:

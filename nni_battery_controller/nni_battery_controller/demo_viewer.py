@@ -56,7 +56,7 @@ def rerun_sink(words) -> dict:
 def start_viewer(viewer: Supervisor, sink: dict, f0_hz: float, **network):
     """Start the Rerun bridge (and for ``serve`` the web viewer it streams to); return the bridge.
 
-    ``network``: the bridge's ``namespaces`` and ``case`` for a network's generators.
+    ``network``: the bridge's ``namespaces``, ``case`` and ``coi_weights`` for a network's generators.
     """
     params = {**sink, "f0_hz": f0_hz, **network}
     if sink["sink"] == "serve":

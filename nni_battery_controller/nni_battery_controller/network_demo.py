@@ -410,7 +410,7 @@ def main(argv=None) -> int:
         sink = rerun_sink(args.rerun) if args.rerun else None
         with Supervisor(env, args.out) as viewer:
             bridge = start_viewer(viewer, sink, float(net.f0_hz), namespaces=[f"/{ns}" for ns in spaces],
-                                  case=args.case) if sink else None
+                                  case=args.case, coi_weights=[float(m) for m in net.inertia_m]) if sink else None
             for index, b in enumerate(args.b, start=1):  # the bridge counts its runs from 1
                 results.append(show_run(args, b, env, bridge, index, plotted))
             if sink and sink["sink"] == "serve":

@@ -21,14 +21,15 @@ Progress: whenever a run's count of logged samples changes, one line
 "last_t_s": ...}`` on stdout (``PROGRESS_PREFIX``), so that nni-demo can check
 that the stream holds every sample of run i before it moves on.
 
-A network (parameter ``namespaces``, e.g. ``[/gen1, /gen2, /gen3, /gen4]``, with
-``case``, the case those generators are, 1-based in case order as the network
-plant names them): the same topics in every namespace; a generator's sample is
-drawn once every generator's ``plant/state`` of its stamp and its own
-``controller/state`` are in, its angle relative to the centre of inertia
-(weights the machines' M from the case), labelled ``gen<i>`` (``gen<i> #2`` in a
-second run), in the network layout (:data:`rerun_layout.NETWORK_VIEW`); f0 is the
-case's. The gate subscribes to every generator's ``pmu``. The progress line then
+A network (parameter ``namespaces``, e.g. ``[/gen1, /gen2, /gen3, /gen4]``, 1-based
+in case order as the network plant names them, with ``case``, the case's name the
+view is labelled with, and ``coi_weights``, the machines' inertias M in the same
+order): the same topics in every namespace; a generator's sample is drawn once
+every generator's ``plant/state`` of its stamp and its own ``controller/state``
+are in, its angle relative to the centre of inertia (weighted by ``coi_weights``),
+labelled ``gen<i>`` (``gen<i> #2`` in a second run), in the network layout
+(:data:`rerun_layout.NETWORK_VIEW`); ``f0_hz`` must be the case's (the launcher
+gives both: the bridge, in the message layer, does not load cases). The gate subscribes to every generator's ``pmu``. The progress line then
 also holds ``"generators": {namespace: samples}``. Empty ``namespaces`` (the
 default): the SMIB topics of the bridge's own namespace, as above.
 
@@ -73,32 +74,39 @@ def parameters() -> tuple[Spec, ...]:
              read_only=True),
         Spec("f0_hz", plant_defaults()["f0_hz"], "Nominal frequency, Hz (frequency deviation = speed / 2 pi); "
              "with namespaces the case's.", 1.0, 1e3, read_only=True),
-        Spec("case", "", "With namespaces: the network case of the generators (its machines' inertias weigh the "
-             "centre of inertia), e.g. kundur_two_area.", read_only=True),
+        Spec("case", "", "With namespaces: the network case of the generators, the view's label (e.g. kundur_two_area).",
+             read_only=True),
     )
 
 
 #: The string-array parameter of a network's generator namespaces (declared apart: an empty default has no type).
 NAMESPACES_PARAMETER = "namespaces"
 NAMESPACES_DESCRIPTION = ("Generator namespaces of a network, case order (e.g. [/gen1, /gen2]); empty: the SMIB topics "
-                          "of the bridge's own namespace. Needs case.")
+                          "of the bridge's own namespace. Needs case and coi_weights.")
+#: The double-array parameter of the machines' inertias (declared apart, as namespaces).
+WEIGHTS_PARAMETER = "coi_weights"
+WEIGHTS_DESCRIPTION = "With namespaces: each generator's inertia M (any unit), case order; they weigh the centre of inertia."
 
 
-def network_of(namespaces: list[str], case: str):
-    """The case's Network for a bridge watching ``namespaces``; None for the SMIB (ValueError if they disagree)."""
+def coi_weights(namespaces: list[str], case: str, weights: list[float]):
+    """The normalised centre-of-inertia weights of a bridge watching ``namespaces``; None for the SMIB
+    (ValueError, one line, if the parameters disagree)."""
     if not namespaces:
-        if case:
-            raise ValueError(f"case {case!r} needs namespaces (the generators to show)")
+        if case or weights:
+            raise ValueError(f"{'case' if case else 'coi_weights'} needs namespaces (the generators to show)")
         return None
-    if not case:
-        raise ValueError("namespaces needs case: the machines' inertias weigh the centre of inertia")
-    from nni_plant_sim.cases import load_network
-
-    net = load_network(case)
-    expected = [f"/gen{i + 1}" for i in range(net.size)]
+    if not case or not weights:
+        raise ValueError("namespaces needs case (the view's label) and coi_weights (the machines' inertias weigh "
+                         "the centre of inertia)")
+    expected = [f"/gen{i + 1}" for i in range(len(namespaces))]
     if list(namespaces) != expected:
-        raise ValueError(f"namespaces of case {case} are {expected} (the network plant's), got {list(namespaces)}")
-    return net
+        raise ValueError(f"namespaces are {expected[:3]} ... in case order (the network plant's), got {list(namespaces)}")
+    values = np.asarray(weights, dtype=float)
+    if len(values) != len(namespaces):
+        raise ValueError(f"coi_weights has {len(values)} values for {len(namespaces)} namespaces")
+    if not (np.isfinite(values).all() and (values > 0).all()):
+        raise ValueError(f"coi_weights must be positive and finite, got {list(weights)}")
+    return values / values.sum()
 
 
 #: How often the bridge looks for a plant and a controller, and reports progress, s.
@@ -159,17 +167,15 @@ class RerunBridge(Node):
         values = declared_values(self, parameters())
         self.declare_parameter(NAMESPACES_PARAMETER, Parameter.Type.STRING_ARRAY,
                                ParameterDescriptor(description=NAMESPACES_DESCRIPTION, read_only=True))
+        self.declare_parameter(WEIGHTS_PARAMETER, Parameter.Type.DOUBLE_ARRAY,
+                               ParameterDescriptor(description=WEIGHTS_DESCRIPTION, read_only=True))
         namespaces = self.get_parameter_or(NAMESPACES_PARAMETER).value or []
-        self._net = network_of(namespaces, values["case"])
+        self._weights = coi_weights(namespaces, values["case"], list(self.get_parameter_or(WEIGHTS_PARAMETER).value or []))
+        self._network = self._weights is not None  # a network's generators
         self._namespaces = tuple(namespaces) or ("",)
         self._f0_hz, self._case = values["f0_hz"], values["case"]
-        if self._net is not None:
-            default_f0 = next(spec.default for spec in parameters() if spec.name == "f0_hz")
-            if self._f0_hz not in (default_f0, self._net.f0_hz):
-                raise ValueError(f"f0_hz {self._f0_hz:g}: case {values['case']} has f0 = {self._net.f0_hz:g} Hz")
-            self._f0_hz = float(self._net.f0_hz)
         sink = (values["sink"], {"save": values["path"], "connect": values["url"]}.get(values["sink"]))
-        layout = blueprint(kind=NETWORK_VIEW) if self._net is not None else None
+        layout = blueprint(kind=NETWORK_VIEW) if self._network else None
         self._recording, url = open_recording(APP_ID, sink, layout=layout)
         if url:
             self.get_logger().info(f"{URL_TEXT} {url}")
@@ -187,7 +193,7 @@ class RerunBridge(Node):
                                                     lambda msg, i=index: self._on_plant(i, msg)))
             self._controller_subs.append(self._subscribe(namespace, contract.TOPIC_CONTROLLER_STATE,
                                                          lambda msg, i=index: self._on_controller(i, msg)))
-        if self._net is None:
+        if not self._network:
             self._subscribe("", contract.TOPIC_INVARIANT_SET, self._on_invariant_set)
         self._last_plant_s, self._heard_since = -math.inf, None
         self.create_timer(WATCH_PERIOD_S, self._watch)
@@ -271,8 +277,8 @@ class RerunBridge(Node):
                 self._pending.pop(next(iter(self._pending)))
             return
         angles = np.array([sample["plant"][i][0] for i in range(size)])
-        if self._net is not None:
-            angles = angles - float(self._net.coi(angles))
+        if self._network:
+            angles = angles - float(np.dot(self._weights, angles))
         t_s = (stamp_ns - self._run.t0_ns) / 1e9  # correctly rounded: 0.98, not 0.9800000000000001
         for i, signals in sample["controller"].items():
             if i not in sample["logged"]:
@@ -284,7 +290,7 @@ class RerunBridge(Node):
     def _log(self, index: int, t_s: float, angle_rad: float, speed: float, signals: dict) -> None:
         """One generator's sample: the SMIB's angle deviation, or a network generator's angle to the COI."""
         run = self._run
-        network = self._net is not None
+        network = self._network
         if index not in run.loggers:
             b = signals["battery_limit"]
             label = self._namespaces[index].lstrip("/") if network else run_label(b)
