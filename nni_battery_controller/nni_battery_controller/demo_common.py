@@ -207,8 +207,8 @@ def wait_for_recorder(logger, spaces, logs: Path, topics=CONTROLLER_TOPICS, pref
         if not missing:
             return
         if logger.poll() is not None:
-            last = (logger.output().strip().splitlines() or ["(nothing printed)"])[-1]
-            raise CliError(f"{what} exited before it subscribed to every loop topic: {last} (logs in {logs})")
+            raise CliError(f"{what} exited before it subscribed to every loop topic: {logger.last_line()} "
+                           f"(logs in {logs})")
         if time.monotonic() > deadline:
             raise CliError(f"{what} did not subscribe to {len(missing)} loop topic(s) within "
                            f"{RECORDER_WAIT_S:g} s ({', '.join(sorted(missing)[:3])} ...; logs in {logs})")

@@ -58,8 +58,7 @@ def start_bridge(procs, address: str | None, env: dict, label: dict, logs: Path)
     try:
         bridge.wait_for_line(SERVING_TEXT, SERVE_WAIT_S)
     except ChildError:
-        last = (bridge.output().strip().splitlines() or ["(nothing printed)"])[-1]
-        raise CliError(f"the Foxglove bridge is not serving: {last} (logs in {logs})") from None
+        raise CliError(f"the Foxglove bridge is not serving: {bridge.last_line()} (logs in {logs})") from None
     return bridge
 
 

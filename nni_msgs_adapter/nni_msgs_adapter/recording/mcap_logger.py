@@ -57,7 +57,7 @@ from nni_msgs_adapter.recording.mcap_io import (
     OfferedQos, RecordingError, Ros2McapWriter, WriteFailure, qos_profiles_yaml, read_recording,
 )
 from nni_msgs_adapter.ros.node_main import run_node
-from nni_msgs_adapter.recording.runs import FOREIGN_PREFIX, RUN_METADATA_NAME, split_topic
+from nni_msgs_adapter.recording.runs import FOREIGN_PREFIX, RUN_METADATA_NAME, new_loop_topics
 from nni_msgs_adapter.ros.ros_params import Spec, declared_values
 
 @functools.cache
@@ -165,19 +165,9 @@ class McapLogger(Node):
     def _scan_graph(self) -> None:
         if self.failure is not None:
             return
-        for topic, types in self.get_topic_names_and_types():
-            if topic in self._recorded:
-                continue
-            split = split_topic(topic)
-            if split is None:
-                continue
-            name = split[1]
+        for topic, name, publishers in new_loop_topics(self, self._recorded):
             type_name = contract.TOPICS[name][0]
-            if type_name not in types:
-                continue
-            offered = [OfferedQos.from_rclpy(info.qos_profile) for info in self.get_publishers_info_by_topic(topic)]
-            if not offered:
-                continue  # only subscribers so far; the publishers' QoS is what replay must offer
+            offered = [OfferedQos.from_rclpy(info.qos_profile) for info in publishers]  # what replay must offer
             try:
                 channel = self._writer.add_channel(topic, type_name, qos_profiles_yaml(offered))
             except RecordingError as exc:

@@ -73,6 +73,21 @@ def split_topic(topic: str) -> tuple[str, str] | None:
     return None
 
 
+
+def new_loop_topics(node, seen) -> list[tuple[str, str, list]]:
+    """The contract topics on ``node``'s graph not in ``seen`` that have a publisher of the contract's type:
+    ``(topic, contract name, the publishers' endpoint info)`` each (what the logger and the Foxglove bridge
+    subscribe to as the graph grows)."""
+    found = []
+    for topic, types in node.get_topic_names_and_types():
+        split = None if topic in seen else split_topic(topic)
+        if split is None or contract.TOPICS[split[1]][0] not in types:
+            continue
+        publishers = node.get_publishers_info_by_topic(topic)
+        if publishers:  # only subscribers so far: nothing to read yet (and no QoS for the logger to record)
+            found.append((topic, split[1], publishers))
+    return found
+
 def run_metadata(recording: Recording) -> dict | None:
     """The run's parameters (the ``nni_run`` record, values decoded from JSON), or None if not recorded.
 

@@ -336,7 +336,7 @@ def sealed_fields(topic: str, data: bytes) -> tuple[bytes | None, int, tuple] | 
 class SealCheck:
     """A recorder's check of one contract topic (``name``, at its absolute ``topic``) under the run's ``key``:
     :meth:`loops` is True for a message sealed by this run's node, in sequence, False for anything else. Topics
-    without a seal (:data:`SEALS`), and every topic without a key, pass as they come (:attr:`checks` False).
+    without a seal (:data:`SEALS`), and every topic without a key, pass as they come.
     What the MCAP logger and the Foxglove bridge use to keep a rogue's messages apart from the loop's."""
 
     def __init__(self, key: bytes | None, topic: str, name: str):
@@ -344,7 +344,6 @@ class SealCheck:
         self.name = name
         self._verifier = None if seal is None else command_auth.Verifier(
             key, topic, seal[0], seal[1] - command_auth.SEAL_LENGTH)
-        self.checks = self._verifier is not None
 
     def loops(self, data: bytes) -> bool:
         if self._verifier is None:

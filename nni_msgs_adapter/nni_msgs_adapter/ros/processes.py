@@ -137,6 +137,10 @@ class Child:
     def tail(self, chars: int = 300) -> str:
         return self.output().strip()[-chars:]
 
+    def last_line(self) -> str:
+        """The last line the child printed (a node's one-line error when it stopped), or ``(nothing printed)``."""
+        return (self.output().strip().splitlines() or ["(nothing printed)"])[-1]
+
     def wait_for_line(self, prefix: str, timeout_s: float, accept=lambda line: True) -> str:
         """The first printed line that starts with ``prefix`` (after any log decoration) and that ``accept``s.
 

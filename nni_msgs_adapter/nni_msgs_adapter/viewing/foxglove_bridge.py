@@ -3,7 +3,7 @@
     ros2 run nni_msgs_adapter foxglove_bridge --ros-args -p address:=127.0.0.1:8765
 
 What foxglove_bridge does for C++ ROS systems, for this loop's topics only: the node scans the graph as the
-MCAP logger does (:func:`nni_msgs_adapter.recording.runs.split_topic`: measurements, battery commands, plant and
+MCAP logger does (:func:`nni_msgs_adapter.recording.runs.new_loop_topics`: measurements, battery commands, plant and
 controller states, the invariant set, ``/clock``, ``/diagnostics``, every generator's of a network) and offers
 each on a Foxglove server (``foxglove-sdk``) as a channel of the same name, ``cdr`` messages with the
 ``ros2msg`` schema rosbag2 writes (:func:`nni_msgs_adapter.recording.mcap_profile.message_definition`), so that
@@ -35,7 +35,7 @@ from rclpy.node import Node
 
 from nni_msgs_adapter.c37118.profile import address_text, parse_server_address
 from nni_msgs_adapter.recording.mcap_profile import SCHEMA_ENCODING, message_definition
-from nni_msgs_adapter.recording.runs import FOREIGN_PREFIX, split_topic
+from nni_msgs_adapter.recording.runs import FOREIGN_PREFIX, new_loop_topics
 from nni_msgs_adapter.ros import command_auth, contract
 from nni_msgs_adapter.ros.defaults import load_defaults
 from nni_msgs_adapter.ros.node_main import run_node
@@ -126,15 +126,7 @@ class FoxgloveBridge(Node):
         self._run_channel.log({"label": ", ".join(f"{k} {v}" for k, v in self._label.items()), **self._label})
 
     def _scan_graph(self) -> None:
-        for topic, types in self.get_topic_names_and_types():
-            if topic in self._streamed:
-                continue
-            split = split_topic(topic)
-            if split is None or contract.TOPICS[split[1]][0] not in types:
-                continue
-            if not self.get_publishers_info_by_topic(topic):
-                continue
-            name = split[1]
+        for topic, name, _ in new_loop_topics(self, self._streamed):
             msg_class, _, qos = contract.recorder_endpoint(name)
             self._streamed[topic] = self.create_subscription(msg_class, topic, self._forward(topic, name), qos,
                                                              raw=True)
