@@ -151,10 +151,14 @@ def test_a_client_sees_the_smib_run_live_as_recorded_and_a_hostile_one_disturbs_
     assert (label["run"], label["b"], label["law"], label["mode"]) == (1, 0.3, "nni", "realtime"), label
     store = stream_typestore(channels)
     recording = tmp_path / "paper_b0.3.mcap"
+    summary = json.loads((tmp_path / "summary.json").read_text())["scenarios"][0]
+    # Beside two busy processes a realtime plant may skip a reporting instant; it says how many.
+    sent = 200 - summary["skipped_reports"]
+    assert sent >= 190, summary
     for topic in ("/pmu", "/battery/command"):
         got = [data for _, data in seen["messages"][topic]]
         kept = recorded(recording, topic)
-        assert len(kept) == 200 and len(got) >= 180, (topic, len(got), len(kept))
+        assert len(kept) == sent and len(got) >= 180, (topic, len(got), len(kept), sent)
         assert is_slice(got, kept), topic
         first, same = (store.deserialize_cdr(data, "sensor_msgs/msg/JointState") for data in (got[0], kept[kept.index(got[0])]))
         assert list(first.position) == list(same.position) and first.name == same.name
@@ -165,7 +169,6 @@ def test_a_client_sees_the_smib_run_live_as_recorded_and_a_hostile_one_disturbs_
     assert any("Invalid message" in text for text in statuses), hostile
     assert any("Unknown channel ID: 987654321" in text for text in statuses), hostile
     assert hostile[-1][0] == "closed", hostile
-    summary = json.loads((tmp_path / "summary.json").read_text())["scenarios"][0]
     assert summary["samples"] == 200 and summary["max_abs_battery_power_pu"] <= 0.3
     # The shipped layout reads this recording's topics and fields by name.
     assert check_layout_reads(json.loads((LAYOUTS / "nni_smib.json").read_text()), recording) == 14

@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX, SUBSCRIBED_PREFIX
-from nni_msgs_adapter.recording.runs import GeneratorRun
+from nni_msgs_adapter.recording.mcap_logger import COUNTS_PREFIX
+from nni_msgs_adapter.recording.runs import MATCHED_PREFIX, GeneratorRun
 from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.cli_support import CliError, write_json
 from nni_msgs_adapter.ros.command_auth import KEY_FILE_ENV, remove_key_file
@@ -186,32 +186,41 @@ RECORDER_WAIT_S = 120.0
 CONTROLLER_TOPICS = (contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE)
 
 
-def wait_for_recorder(logger, spaces, logs: Path, topics=CONTROLLER_TOPICS, prefix: str = SUBSCRIBED_PREFIX,
-                      what: str = "the logger") -> None:
-    """Wait until the logger has subscribed to every controller's topics (else CliError naming those it has not).
+def loop_writers(spaces, controller_node, plant_node: str, topics=(contract.TOPIC_PMU, *CONTROLLER_TOPICS)) -> dict:
+    """``{absolute topic: the node that writes it}`` for each namespace of ``spaces`` (``[""]``: the SMIB's root):
+    ``pmu`` by ``plant_node``, the controller's topics by ``controller_node(namespace)`` (fully qualified names)."""
+    return {"/" + "/".join(filter(None, (ns, topic))): plant_node if topic == contract.TOPIC_PMU else controller_node(ns)
+            for ns in spaces for topic in topics}
 
-    ``spaces``: the controllers' namespaces (``[""]``: the SMIB's one, at the root).
-    The plant waits for the logger and the controllers on each ``pmu``, not for the logger to have
-    found the controllers' writers: with the composed deployment's one participant of many endpoints,
-    under load, the logger once found /gen3's and /gen4's only after 70 samples (recording 27 of 100
-    commands), and the SMIB's logger once recorded none of its controller's 500 (a lockstep run over
-    before it subscribed, beside a loaded suite): the plant's run is released only once these subscriptions
-    exist (call this before :func:`start_when_read_back`). The same for another recorder (the Foxglove
-    bridge): its ``topics``, the line ``prefix`` it logs per subscription, ``what`` it is called.
+
+def wait_for_recorder(recorder, writers: dict, logs: Path, what: str = "the logger") -> None:
+    """Wait until the ``recorder`` (the MCAP logger, the Foxglove bridge: ``what``) has matched the loop's
+    ``writers`` (``{topic: node}``, :func:`loop_writers`), else CliError naming those it has not.
+
+    The plant counts its readers on each ``pmu``, and that count cannot tell a recorder from any other process
+    subscribed there: under load, with a rogue reading ``/pmu`` on the domain, the plant found its two readers
+    (the controller and the rogue) before the logger had matched its writer, and the logger recorded 229 of
+    250 commands; earlier, with the composed deployment's one participant of many endpoints, it found /gen3's
+    and /gen4's writers only after 70 samples. The recorder logs which writers each subscription has matched
+    (:data:`~nni_msgs_adapter.recording.runs.MATCHED_PREFIX`); the plant's run is released only once every
+    loop writer is among them (call this before :func:`start_when_read_back`).
     """
-    wanted = {"/" + "/".join(filter(None, (ns, topic))) for ns in spaces for topic in topics}
     deadline = time.monotonic() + RECORDER_WAIT_S
     while True:
-        missing = wanted - {line.split(prefix, 1)[1].strip() for line in logger.output().splitlines()
-                            if prefix in line}
+        matched: dict[str, set] = {}
+        for line in recorder.output().splitlines():
+            if MATCHED_PREFIX in line:
+                topic, _, names = line.split(MATCHED_PREFIX, 1)[1].partition(" <- ")
+                matched[topic.strip()] = set(names.strip().split(", "))
+        missing = sorted(f"{topic} from {node}" for topic, node in writers.items() if node not in matched.get(topic, ()))
         if not missing:
             return
-        if logger.poll() is not None:
-            raise CliError(f"{what} exited before it subscribed to every loop topic: {logger.last_line()} "
+        if recorder.poll() is not None:
+            raise CliError(f"{what} exited before it matched every loop writer: {recorder.last_line()} "
                            f"(logs in {logs})")
         if time.monotonic() > deadline:
-            raise CliError(f"{what} did not subscribe to {len(missing)} loop topic(s) within "
-                           f"{RECORDER_WAIT_S:g} s ({', '.join(sorted(missing)[:3])} ...; logs in {logs})")
+            raise CliError(f"{what} did not match {len(missing)} loop writer(s) within "
+                           f"{RECORDER_WAIT_S:g} s ({', '.join(missing[:3])} ...; logs in {logs})")
         time.sleep(0.05)
 
 

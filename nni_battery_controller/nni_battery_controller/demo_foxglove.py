@@ -15,11 +15,10 @@ import json
 from pathlib import Path
 
 from nni_msgs_adapter.c37118.profile import address_text, parse_server_address
-from nni_msgs_adapter.ros import contract
 from nni_msgs_adapter.ros.cli_support import CliError
 from nni_msgs_adapter.ros.processes import ChildError
-from nni_msgs_adapter.viewing.foxglove_bridge import SERVING_TEXT, STREAMING_PREFIX
-from nni_battery_controller.demo_common import CONTROLLER_TOPICS, wait_for_recorder
+from nni_msgs_adapter.viewing.foxglove_bridge import SERVING_TEXT
+from nni_battery_controller.demo_common import wait_for_recorder
 
 #: Where ``--foxglove`` without an address serves: Foxglove's default port, on loopback.
 DEFAULT_ADDRESS = "127.0.0.1:8765"
@@ -62,11 +61,10 @@ def start_bridge(procs, address: str | None, env: dict, label: dict, logs: Path)
     return bridge
 
 
-def wait_streaming(bridge, spaces, logs: Path) -> None:
-    """Wait until ``bridge`` (None: nothing to wait for) streams every generator's ``pmu`` and controller topics."""
+def wait_streaming(bridge, writers: dict, logs: Path) -> None:
+    """Wait until ``bridge`` (None: nothing to wait for) has matched the loop's ``writers`` (as the logger)."""
     if bridge is not None:
-        wait_for_recorder(bridge, spaces, logs, (contract.TOPIC_PMU, *CONTROLLER_TOPICS), STREAMING_PREFIX,
-                          "the Foxglove bridge")
+        wait_for_recorder(bridge, writers, logs, "the Foxglove bridge")
 
 
 def print_url(bridge, index: int) -> None:

@@ -46,6 +46,7 @@ from nni_battery_controller.demo_common import (
     run_environment,
     start_when_read_back,
     stated_only,
+    loop_writers,
     wait_for_recorder,
     write_summary,
 )
@@ -292,8 +293,9 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
         started_controllers = start_controllers(procs, controllers, args.deployment, key_environment(key))
         # The plant holds its run until released: it starts beside the others, its release waits for the logger.
         plant = procs.start_node("network_plant", PLANT, plant_params, env=key_environment(key))
-        wait_for_recorder(logger, spaces, logs)
-        demo_foxglove.wait_streaming(foxglove, spaces, logs)
+        writers = loop_writers(spaces, lambda ns: f"/{ns}/controller", "/network_plant")
+        wait_for_recorder(logger, writers, logs)
+        demo_foxglove.wait_streaming(foxglove, writers, logs)
         demo_foxglove.print_url(foxglove, index)
         watch = StreamWatch(plant) if args.stream else None
         where = watch.listening() if watch is not None else None

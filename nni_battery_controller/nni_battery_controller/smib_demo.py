@@ -49,6 +49,7 @@ from nni_battery_controller.demo_common import (
     run_environment,
     start_when_read_back,
     stated_only,
+    loop_writers,
     wait_for_recorder,
     write_summary,
 )
@@ -210,8 +211,9 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
                                       env=key_environment(key))
         # The plant holds its run until released: it starts beside the others, its release waits for the logger.
         plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params, env=key_environment(key))
-        wait_for_recorder(logger, [""], logs)
-        demo_foxglove.wait_streaming(foxglove, [""], logs)
+        writers = loop_writers([""], lambda _: "/controller", "/plant")
+        wait_for_recorder(logger, writers, logs)
+        demo_foxglove.wait_streaming(foxglove, writers, logs)
         demo_foxglove.print_url(foxglove, index)
         watch = StreamWatch(plant) if args.stream else None
         where = watch.listening() if watch is not None else None
@@ -248,6 +250,8 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
                        if f"latency_{q}_ms" in diag},
         "dropped_samples": int(diag.get("deadline_misses", 0)),
         "late_samples": int(diag.get("late", 0)),
+        # Reporting instants a stalled realtime plant skipped (an overloaded core): measurements never sent.
+        "skipped_reports": int(summary.get("skipped_reports", 0)),
         "logger_counts": counts,
     })
     if watch is not None:

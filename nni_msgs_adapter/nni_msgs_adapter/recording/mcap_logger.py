@@ -57,7 +57,7 @@ from nni_msgs_adapter.recording.mcap_io import (
     OfferedQos, RecordingError, Ros2McapWriter, WriteFailure, qos_profiles_yaml, read_recording,
 )
 from nni_msgs_adapter.ros.node_main import run_node
-from nni_msgs_adapter.recording.runs import FOREIGN_PREFIX, RUN_METADATA_NAME, new_loop_topics
+from nni_msgs_adapter.recording.runs import FOREIGN_PREFIX, RUN_METADATA_NAME, WriterMatches, new_loop_topics
 from nni_msgs_adapter.ros.ros_params import Spec, declared_values
 
 @functools.cache
@@ -78,8 +78,8 @@ def parameters() -> tuple[Spec, ...]:
 
 #: Prefix of the JSON line with per-topic counts printed at exit.
 COUNTS_PREFIX = "mcap_logger counts: "
-#: Logged (INFO) when a topic's subscription is made, the topic after it: a launcher that must not start the
-#: plant before the recorder listens to every controller can wait for these lines (nni-demo --case does).
+#: Logged (INFO) when a topic's subscription is made, the topic after it (then a ``runs.MATCHED_PREFIX`` line once
+#: it has matched the topic's writers: what a launcher waits for).
 SUBSCRIBED_PREFIX = "recording topic "
 #: Exit status of a logger that could not write its file to the end.
 EXIT_WRITE_FAILURE = 1
@@ -138,6 +138,7 @@ class McapLogger(Node):
         if metadata is not None:
             self._writer.add_metadata(RUN_METADATA_NAME, metadata)
         self._recorded: dict[str, object] = {}
+        self._matches = WriterMatches()
         self._key = command_auth.key_from_environment()
         #: topic -> messages written apart as not the loop's (their seals did not verify).
         self.foreign: dict[str, int] = {}
@@ -180,6 +181,8 @@ class McapLogger(Node):
             self._recorded[topic] = self.create_subscription(
                 msg_class, topic, self._writer_for(channel, topic, name, qos_profiles_yaml(offered)), qos, raw=True)
             self.get_logger().info(SUBSCRIBED_PREFIX + topic)
+        for line in self._matches.new_lines(self, self._recorded):
+            self.get_logger().info(line)
 
     def _writer_for(self, channel: int, topic: str, name: str, qos_yaml: str):
         """The callback of ``topic``: writes the message and those already queued behind it (``DRAIN_LIMIT`` in all).

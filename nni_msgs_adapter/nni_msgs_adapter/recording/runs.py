@@ -88,6 +88,36 @@ def new_loop_topics(node, seen) -> list[tuple[str, str, list]]:
             found.append((topic, split[1], publishers))
     return found
 
+#: Logged (INFO) by a recorder (the MCAP logger, the Foxglove bridge) when its subscription to a topic has matched
+#: every writer its graph knows on it: ``MATCHED_PREFIX + "/pmu <- /plant, /rogue"``. A launcher that must not
+#: release the plant before the recorder hears the loop's writers waits for the line naming them
+#: (:func:`nni_battery_controller.demo_common.wait_for_recorder`): a reader count cannot tell, since any process
+#: on the domain that subscribes to ``/pmu`` (a rogue) counts as one of the plant's readers.
+MATCHED_PREFIX = "matched the writers of "
+
+
+class WriterMatches:
+    """What a recorder logs as its subscriptions match the graph's writers (:data:`MATCHED_PREFIX` lines)."""
+
+    def __init__(self):
+        self._logged: dict[str, tuple[str, ...]] = {}
+
+    def new_lines(self, node, subscriptions: dict) -> list[str]:
+        """``topic <- writer, ...`` for each topic of ``subscriptions`` (``{topic: subscription or None}``) whose
+        subscription has matched as many writers as ``node``'s graph lists there, when that list changed."""
+        lines = []
+        for topic, subscription in subscriptions.items():
+            if subscription is None:
+                continue
+            infos = node.get_publishers_info_by_topic(topic)
+            writers = tuple(sorted({"/".join(filter(None, (*info.node_namespace.split("/"), info.node_name)))
+                                    for info in infos}))
+            if infos and subscription.get_publisher_count() >= len(infos) and self._logged.get(topic) != writers:
+                self._logged[topic] = writers
+                lines.append(f"{MATCHED_PREFIX}{topic} <- {', '.join('/' + w for w in writers)}")
+        return lines
+
+
 def run_metadata(recording: Recording) -> dict | None:
     """The run's parameters (the ``nni_run`` record, values decoded from JSON), or None if not recorded.
 

@@ -35,7 +35,7 @@ from rclpy.node import Node
 
 from nni_msgs_adapter.c37118.profile import address_text, parse_server_address
 from nni_msgs_adapter.recording.mcap_profile import SCHEMA_ENCODING, message_definition
-from nni_msgs_adapter.recording.runs import FOREIGN_PREFIX, new_loop_topics
+from nni_msgs_adapter.recording.runs import FOREIGN_PREFIX, WriterMatches, new_loop_topics
 from nni_msgs_adapter.ros import command_auth, contract
 from nni_msgs_adapter.ros.defaults import load_defaults
 from nni_msgs_adapter.ros.node_main import run_node
@@ -110,6 +110,7 @@ class FoxgloveBridge(Node):
         self._run_channel = foxglove.Channel(RUN_TOPIC, message_encoding="json", schema=foxglove.Schema(
             name="nni/Run", encoding="jsonschema", data=json.dumps(_RUN_SCHEMA).encode()))
         self._streamed: dict[str, object] = {}
+        self._matches = WriterMatches()
         self.counts: dict[str, int] = {}
         self.foreign: dict[str, int] = {}
         self._scan_graph()
@@ -131,6 +132,8 @@ class FoxgloveBridge(Node):
             self._streamed[topic] = self.create_subscription(msg_class, topic, self._forward(topic, name), qos,
                                                              raw=True)
             self.get_logger().info(STREAMING_PREFIX + topic)
+        for line in self._matches.new_lines(self, self._streamed):
+            self.get_logger().info(line)
 
     def _forward(self, topic: str, name: str):
         type_name = contract.TOPICS[name][0]
