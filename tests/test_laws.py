@@ -171,3 +171,73 @@ def test_compare_laws_refuses_what_does_not_apply():
         done = subprocess.run([sys.executable, "-m", "nni_battery_controller.simulate_command", *argv],
                               capture_output=True, text=True, timeout=60)
         assert done.returncode == 2 and message in done.stderr, done.stderr
+
+
+def test_every_law_gets_the_same_budget_and_its_grid_holds_the_shipped_gains():
+    from nni_battery_controller.law_tuning import BUDGET, candidates
+    from nni_msgs_adapter.ros.defaults import controller_defaults
+
+    shipped = controller_defaults()
+    for name in LAW_NAMES:
+        points = [values for _, values in candidates(name)]
+        assert len(points) == BUDGET, name
+        if name.startswith("nni"):  # the paper's gains are a candidate: tau 0.1, K 1, L 1.1, alpha 1
+            assert {"tau_s": 0.1, "alpha": 1.0, "gain_k": 1.0, "l_over_k": 1.1} in points, name
+        else:
+            wanted = {field: shipped[f"{name}_{field}"] for field in points[0]}
+            assert wanted in points, (name, wanted)
+
+
+def test_the_droop_search_picks_the_longest_settling_cct_and_that_pick_is_the_shipped_droop():
+    """The search for droop on the paper's case at b = 0.3 (25 bisections), checked against its own rule:
+    the pick has the longest CCT among the settling candidates (to the bisection's 1 ms; of those, the least
+    battery energy), a fresh bisection gives the same CCT,
+    and the shipped default (config/controller.yaml) is that pick."""
+    from nni_battery_controller.law_comparison import run_summary
+    from nni_battery_controller.law_tuning import tune
+    from nni_battery_controller.margins import CCT_TOLERANCE_S
+    from nni_battery_controller.smib_study import simulate, smib_cct
+    from nni_plant_sim.scenarios import InitialAngle
+
+    plant, ctrl, scenario = SmibParams(), ControllerParams(battery_limit_pu=0.3), InitialAngle(0.2, 0.0)
+    result = tune("droop", ctrl, lambda law: (simulate(plant, law, scenario, 10.0, 50.0), scenario),
+                  lambda law: smib_cct(plant, law, 0.0, 10.0, 50.0), CCT_TOLERANCE_S)
+    pick = result["pick"]
+    assert result["candidates"] == 25 and result["qualifying"] >= 20
+    longest = max(p["cct_s"] for p in result["points"] if p["settled"])
+    tied = [p for p in result["points"] if p["settled"] and p["cct_s"] >= longest - CCT_TOLERANCE_S]
+    assert pick["cct_s"] >= longest - CCT_TOLERANCE_S and pick["energy_pu_s"] == min(p["energy_pu_s"] for p in tied)
+    assert smib_cct(plant, Law("droop", ctrl, DroopGains(**pick["gains"])), 0.0, 10.0, 50.0).cct_s == pick["cct_s"]
+    assert run_summary(simulate(plant, law("droop"), scenario, 10.0, 50.0), scenario)["settled"]
+    assert pick["gains"] == {"k_f": DroopGains().k_f} == {"k_f": 562.0}
+    # The pick beats the old untuned 100 (CCT 0.230 s) and its neighbours (k_f 464, 681) are within 1 ms.
+    assert pick["cct_s"] > 0.23 and pick["cct_s"] - result["worst_neighbour_cct_s"] <= 2 * CCT_TOLERANCE_S
+
+
+def test_tune_laws_prints_every_laws_pick_and_writes_json(tmp_path):
+    out_json = tmp_path / "tune.json"
+    done = subprocess.run([sys.executable, "-m", "nni_battery_controller.simulate_command", "--tune-laws",
+                           "--duration", "3", "--json", str(out_json)], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "b = 0.3 pu" in done.stdout.splitlines()[0] and "25 candidates" in done.stdout
+    rows = {line.split()[0]: line for line in done.stdout.splitlines() if line.split()[:1] and line.split()[0] in LAW_NAMES}
+    assert list(rows) == list(LAW_NAMES), done.stdout
+    data = __import__("json").loads(out_json.read_text())
+    assert (data["b"], data["budget"], [r["law"] for r in data["laws"]]) == (0.3, 25, list(LAW_NAMES))
+    assert set(data["default_cct_s"]) == set(LAW_NAMES) and all(len(r["points"]) == 25 for r in data["laws"])
+    assert set(data["laws"][2]) == {"law", "candidates", "qualifying", "pick", "worst_neighbour_cct_s", "share_near",
+                                    "points"}
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--tune-laws", "--b", "0.2", "0.3"], "--b takes one number > 0"),
+    (["--tune-laws", "--b", "inf"], "--b takes one number > 0"),
+    (["--tune-laws", "--compare-laws"], "it takes no --compare-laws"),
+    (["--tune-laws", "--law", "pss"], "it takes no --law"),
+    (["--tune-laws", "--plot", "x.png"], "it takes no --plot"),
+])
+def test_tune_laws_refuses_what_does_not_apply(argv, message, tmp_path):
+    done = subprocess.run([sys.executable, "-m", "nni_battery_controller.simulate_command", *argv],
+                          capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert done.returncode == 2 and message in done.stderr and len(done.stderr.splitlines()) == 1, done.stderr
+    assert not (tmp_path / "x.png").exists()

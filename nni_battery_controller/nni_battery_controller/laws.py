@@ -68,10 +68,11 @@ def _non_negative(owner, *names) -> None:
 class DroopGains:
     """Fast frequency response: ``v = -k_f dw`` (k_f: pu power per pu frequency, the machine's rating).
 
-    The defaults of every speed law here are typical starting values, not yet tuned (docs/laws.md).
+    The speed laws' defaults are the picks of the fair-tuning search (``nni-simulate --tune-laws``,
+    :mod:`.law_tuning`, docs/laws.md) at b = 0.3 on the paper's case; config/controller.yaml ships the same.
     """
 
-    k_f: float = 100.0
+    k_f: float = 562.0
 
     def __post_init__(self) -> None:
         _positive(self, "k_f")
@@ -88,8 +89,8 @@ class VsmGains:
     (pu power per pu frequency); t_f_s: the derivative's filter (s).
     """
 
-    h_v_s: float = 5.0
-    d_v: float = 100.0
+    h_v_s: float = 1.25
+    d_v: float = 316.0
     t_f_s: float = 0.05
 
     def __post_init__(self) -> None:

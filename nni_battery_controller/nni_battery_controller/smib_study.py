@@ -28,6 +28,7 @@ import time
 
 from nni_battery_controller.figures import plot_runs, roa_figure, save_png
 from nni_battery_controller.law_comparison import MWH_PER_PU_S_100MVA, compare, comparison_figure, format_rows
+from nni_battery_controller.law_tuning import BUDGET, format_results, tune
 from nni_battery_controller.laws import LAW_NAMES
 from nni_battery_controller.margins import (
     CCT_TOLERANCE_S,
@@ -132,6 +133,11 @@ def build_parser() -> OneLineParser:
                         help="every battery law (nni, nni-unsaturated, droop, vsm, pss) per b, sampled at the PMU "
                              "rate: verdict, settling, battery energy, time in saturation and the transfer-limit "
                              "fault's CCT; a table, --json, --plot (CCT against b per law); docs/laws.md (default: off)")
+    parser.add_argument("--tune-laws", action="store_true",
+                        help="the fair-tuning search behind the shipped gains: per law the same number of candidate "
+                             "gains, each run and its transfer-limit fault's CCT found; the law's pick: the longest "
+                             "CCT among the candidates whose run settles (ties: less battery energy); at one --b "
+                             "(default 0.3); a table and --json; docs/laws.md (default: off)")
     parser.add_argument("--delay-margin", action="store_true",
                         help="instead of one run per b: the largest fixed measurement-to-command delay (the link's) "
                              "that keeps the sampled-data loop in synchronism over --duration, per b; a scan in "
@@ -362,6 +368,35 @@ def run_compare_laws(args, model, plant: SmibParams) -> int:
     return 0
 
 
+def run_tune_laws(args, model, plant: SmibParams) -> int:
+    """``--tune-laws``: the search of :mod:`.law_tuning` for every law at one b; table and --json."""
+    rate, (b,) = args.controller_rate, args.b
+    scenario = model.scenario()
+    # Bounded per candidate as --cct is (the search is 5 x BUDGET of those, about 0.25 s each at the defaults).
+    check_work(plant, [model.controller_params(b)], args.duration, rate,
+               runs_per_b=2 * math.ceil(math.log2(args.duration / CCT_TOLERANCE_S)) + 4)
+    fault_p_max = model.plant["fault_p_max_pu"]
+    print(f"Fair tuning, SMIB, {model.header().split('; law ')[0]}, b = {b:g} pu")
+    print(f"every law {BUDGET} candidates sampled at {rate:g} Hz, {args.duration:g} s; the pick: the longest CCT of the "
+          f"transfer_limit_fault (P_max = {fault_p_max:g} pu during it, bisection to {CCT_TOLERANCE_S * 1e3:g} ms) "
+          f"among the candidates whose run settles, ties to less battery energy")
+    ctrl = model.controller_params(b)
+    results, defaults = [], {}
+    for name in LAW_NAMES:
+        results.append(tune(name, ctrl, lambda law: (simulate(plant, law, scenario, args.duration, rate), scenario),
+                            lambda law: smib_cct(plant, law, fault_p_max, args.duration, rate), CCT_TOLERANCE_S))
+        defaults[name] = smib_cct(plant, model.law(b, name), fault_p_max, args.duration, rate).cct_s
+    print(format_results(results, defaults))
+    print("default: the configured gains' CCT (shipped: config/controller.yaml; the NNI laws the paper's); worst nbr: the worst CCT one grid step "
+          "from the pick; near: the share of the grid within 10 % of the pick's CCT; ok: candidates whose run settles")
+    if args.json:
+        write_json(args.json, {"scenario": model.scenario_values(), "controller": controller_text(rate), "b": b,
+                               "duration_s": args.duration, "tolerance_s": CCT_TOLERANCE_S, "budget": BUDGET,
+                               "default_cct_s": defaults, "laws": results})
+        print(f"wrote {args.json}")
+    return 0
+
+
 def permanent_step_note(model, plant: SmibParams) -> str:
     """What a permanent mechanical power step does, with the new equilibrium angles in closed form."""
     step, c = model.plant["step_p_mech_pu"], model.controller
@@ -491,6 +526,18 @@ def main(argv=None) -> int:
                     raise CliError("--compare-laws runs every law sampled at the PMU rate without a link: it takes "
                                    "no --controller-rate continuous and no --link-* option")
                 args.laws_compared = LAW_NAMES
+            if args.tune_laws:
+                for flag in ("compare_laws", "cct", "roa", "delay_margin", "law", "plot"):
+                    if getattr(args, flag):
+                        raise CliError(f"--tune-laws searches every law's gains: it takes no --{flag.replace('_', '-')}")
+                if args.continuous_given or given_link_options(args):
+                    raise CliError("--tune-laws runs every law sampled at the PMU rate without a link: it takes "
+                                   "no --controller-rate continuous and no --link-* option")
+                if args.b is parser.get_default("b"):
+                    args.b = [0.3]
+                if len(args.b) != 1 or not 0 < args.b[0] < math.inf:
+                    raise CliError("--tune-laws searches at one finite battery limit: --b takes one number > 0")
+                args.laws_compared = LAW_NAMES
             if args.cct:
                 if args.roa or args.plot:
                     raise CliError("--cct prints and writes --json only: it takes neither --roa nor --plot")
@@ -501,11 +548,10 @@ def main(argv=None) -> int:
             model = resolve_model(args, parser.prog)
             plant = model.smib()
             model.validate()
-            if model.law_name != "nni" or args.compare_laws:
+            if model.law_name != "nni" or args.compare_laws or args.tune_laws:
                 if args.roa or args.continuous_given:
                     raise CliError(f"--law {model.law_name} runs sampled at the PMU rate: "
-                                   + ("--roa sweeps the continuous nni law; --compare-laws sweeps every law's "
-                                      "region of attraction" if args.roa else "it takes no --controller-rate "
+                                   + ("--roa sweeps the continuous nni law only" if args.roa else "it takes no --controller-rate "
                                                                                "continuous"))
                 if args.controller_rate is None:  # the sampled law at the plant node's PMU rate
                     args.controller_rate = plant_defaults()["pmu_rate_hz"]
@@ -515,6 +561,8 @@ def main(argv=None) -> int:
                 status = run_delay_margin(args, model, plant)
             elif args.compare_laws:
                 status = run_compare_laws(args, model, plant)
+            elif args.tune_laws:
+                status = run_tune_laws(args, model, plant)
             elif args.cct:
                 status = run_cct(args, model, plant)
             else:
