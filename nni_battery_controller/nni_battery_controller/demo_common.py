@@ -186,11 +186,17 @@ RECORDER_WAIT_S = 120.0
 CONTROLLER_TOPICS = (contract.TOPIC_BATTERY_COMMAND, contract.TOPIC_CONTROLLER_STATE)
 
 
-def loop_writers(spaces, controller_node, plant_node: str, topics=(contract.TOPIC_PMU, *CONTROLLER_TOPICS)) -> dict:
+#: What the plant writes per generator that a run's recording must hold from its first sample.
+PLANT_TOPICS = (contract.TOPIC_PMU, contract.TOPIC_PLANT_STATE)
+
+
+def loop_writers(spaces, controller_node, plant_node: str) -> dict:
     """``{absolute topic: the node that writes it}`` for each namespace of ``spaces`` (``[""]``: the SMIB's root):
-    ``pmu`` by ``plant_node``, the controller's topics by ``controller_node(namespace)`` (fully qualified names)."""
-    return {"/" + "/".join(filter(None, (ns, topic))): plant_node if topic == contract.TOPIC_PMU else controller_node(ns)
-            for ns in spaces for topic in topics}
+    ``pmu`` and ``plant/state`` by ``plant_node``, the controller's topics by ``controller_node(namespace)`` (fully
+    qualified names). Every one: IEEE 300's composed run once recorded 4 of 51 plant states of /gen69, the logger
+    having matched its ``pmu`` writer but not yet its ``plant/state`` one when the plant was released."""
+    return {"/" + "/".join(filter(None, (ns, topic))): plant_node if topic in PLANT_TOPICS else controller_node(ns)
+            for ns in spaces for topic in (*PLANT_TOPICS, *CONTROLLER_TOPICS)}
 
 
 def wait_for_recorder(recorder, writers: dict, logs: Path, what: str = "the logger") -> None:
