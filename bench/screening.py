@@ -76,7 +76,9 @@ def andes_bisection(python: Path) -> dict:
                                                        str(ROOT / "tests" / "network_reference")]))
     result = subprocess.run([str(python), "-c", code], capture_output=True, text=True, env=env, timeout=3600)
     if result.returncode != 0:
-        raise RuntimeError(f"ANDES' bisection exited with {result.returncode}: {result.stderr[-300:]}")
+        # Its last line (the exception), not a traceback in BENCHMARKS.md.
+        last = (result.stderr.strip().splitlines() or ["no output"])[-1]
+        raise RuntimeError(f"ANDES' bisection in {python} exited with {result.returncode}: {last}")
     return json.loads(result.stdout.strip().splitlines()[-1])
 
 
