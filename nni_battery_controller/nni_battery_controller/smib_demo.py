@@ -45,11 +45,11 @@ from nni_battery_controller.demo_common import (
     finish_plant,
     key_environment,
     logger_counts,
+    loop_writers,
     plant_summary,
     run_environment,
     start_when_read_back,
     stated_only,
-    loop_writers,
     wait_for_recorder,
     write_summary,
 )

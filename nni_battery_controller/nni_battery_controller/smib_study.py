@@ -337,10 +337,18 @@ def smib_cct(plant, law, fault_p_max: float, duration_s: float, rate_hz, link=NO
     return critical_clearing_time(in_sync, law.limit_pu, duration_s)
 
 
+def law_runners(args, model, plant: SmibParams):
+    """``(simulate_run, cct_of)`` of the laws compared and tuned: ``simulate_run(law)`` the scenario's sampled run
+    and the scenario, ``cct_of(law)`` its transfer-limit fault's CCT (:func:`smib_cct`), both at --duration and the
+    controller rate."""
+    scenario, fault_p_max = model.scenario(), model.plant["fault_p_max_pu"]
+    return (lambda law: (simulate(plant, law, scenario, args.duration, args.controller_rate), scenario),
+            lambda law: smib_cct(plant, law, fault_p_max, args.duration, args.controller_rate))
+
+
 def run_compare_laws(args, model, plant: SmibParams) -> int:
     """``--compare-laws``: every law per b on the same plant, limit and rate; table, --json, --plot."""
     rate = args.controller_rate
-    scenario = model.scenario()
     laws_by_b = {b: [model.law(b, name) for name in LAW_NAMES] for b in args.b}
     # Bounded per law as --cct is (the comparison is five of those).
     check_work(plant, [model.controller_params(b) for b in args.b], args.duration, rate,
@@ -351,8 +359,7 @@ def run_compare_laws(args, model, plant: SmibParams) -> int:
           f"{fault_p_max:g} pu during it), bisection to {CCT_TOLERANCE_S * 1e3:g} ms; energy: integral of |P_ST| dt")
     for name in LAW_NAMES:
         print(f"  {laws_by_b[args.b[0]][LAW_NAMES.index(name)].describe()}")
-    rows = compare(laws_by_b, lambda law: (simulate(plant, law, scenario, args.duration, rate), scenario),
-                   lambda law: smib_cct(plant, law, fault_p_max, args.duration, rate))
+    rows = compare(laws_by_b, *law_runners(args, model, plant))
     print(format_rows(rows))
     print(f"energy in MWh: pu s x {MWH_PER_PU_S_100MVA:.5f} per 100 MVA of rating; saturated: the output at +-b")
     if args.json:
@@ -371,7 +378,6 @@ def run_compare_laws(args, model, plant: SmibParams) -> int:
 def run_tune_laws(args, model, plant: SmibParams) -> int:
     """``--tune-laws``: the search of :mod:`.law_tuning` for every law at one b; table and --json."""
     rate, (b,) = args.controller_rate, args.b
-    scenario = model.scenario()
     # Bounded per candidate as --cct is (the search is 5 x BUDGET of those, about 0.25 s each at the defaults).
     check_work(plant, [model.controller_params(b)], args.duration, rate,
                runs_per_b=2 * math.ceil(math.log2(args.duration / CCT_TOLERANCE_S)) + 4)
@@ -382,13 +388,14 @@ def run_tune_laws(args, model, plant: SmibParams) -> int:
           f"among the candidates whose run settles, ties to less battery energy")
     ctrl = model.controller_params(b)
     results, defaults = [], {}
+    simulate_run, cct_of = law_runners(args, model, plant)
     for name in LAW_NAMES:
-        results.append(tune(name, ctrl, lambda law: (simulate(plant, law, scenario, args.duration, rate), scenario),
-                            lambda law: smib_cct(plant, law, fault_p_max, args.duration, rate), CCT_TOLERANCE_S))
-        defaults[name] = smib_cct(plant, model.law(b, name), fault_p_max, args.duration, rate).cct_s
+        results.append(tune(name, ctrl, simulate_run, cct_of, CCT_TOLERANCE_S))
+        defaults[name] = cct_of(model.law(b, name)).cct_s
     print(format_results(results, defaults))
-    print("default: the configured gains' CCT (shipped: config/controller.yaml; the NNI laws the paper's); worst nbr: the worst CCT one grid step "
-          "from the pick; near: the share of the grid within 10 % of the pick's CCT; ok: candidates whose run settles")
+    print("default: the configured gains' CCT (shipped: config/controller.yaml; the NNI laws the paper's); "
+          "worst nbr: the worst CCT one grid step from the pick; near: the share of the grid within 10 % of the "
+          "pick's CCT; ok: candidates whose run settles")
     if args.json:
         write_json(args.json, {"scenario": model.scenario_values(), "controller": controller_text(rate), "b": b,
                                "duration_s": args.duration, "tolerance_s": CCT_TOLERANCE_S, "budget": BUDGET,
@@ -510,6 +517,18 @@ def apply_mode_defaults(args) -> None:
     args.duration = DEFAULT_DURATION_S if args.duration is None else args.duration
 
 
+def refuse_beside_every_law(args, option: str, what: str, flags) -> None:
+    """CliError when ``option``, a mode that runs every law (``what`` it does), is given one of ``flags``,
+    continuous time or a link; else every law's gain options apply (``args.laws_compared``)."""
+    for flag in flags:
+        if getattr(args, flag):
+            raise CliError(f"{option} {what}: it takes no --{flag.replace('_', '-')}")
+    if args.continuous_given or given_link_options(args):
+        raise CliError(f"{option} runs every law sampled at the PMU rate without a link: it takes "
+                       "no --controller-rate continuous and no --link-* option")
+    args.laws_compared = LAW_NAMES
+
+
 def main(argv=None) -> int:
     """``nni-simulate`` without ``--case`` (called by :func:`nni_battery_controller.simulate_command.main`)."""
     parser = build_parser()
@@ -519,25 +538,14 @@ def main(argv=None) -> int:
             args = parser.parse_args(argv)
             apply_mode_defaults(args)
             if args.compare_laws:
-                for flag in ("cct", "roa", "delay_margin", "law"):
-                    if getattr(args, flag):
-                        raise CliError(f"--compare-laws runs every law: it takes no --{flag.replace('_', '-')}")
-                if args.continuous_given or given_link_options(args):
-                    raise CliError("--compare-laws runs every law sampled at the PMU rate without a link: it takes "
-                                   "no --controller-rate continuous and no --link-* option")
-                args.laws_compared = LAW_NAMES
+                refuse_beside_every_law(args, "--compare-laws", "runs every law", ("cct", "roa", "delay_margin", "law"))
             if args.tune_laws:
-                for flag in ("compare_laws", "cct", "roa", "delay_margin", "law", "plot"):
-                    if getattr(args, flag):
-                        raise CliError(f"--tune-laws searches every law's gains: it takes no --{flag.replace('_', '-')}")
-                if args.continuous_given or given_link_options(args):
-                    raise CliError("--tune-laws runs every law sampled at the PMU rate without a link: it takes "
-                                   "no --controller-rate continuous and no --link-* option")
+                refuse_beside_every_law(args, "--tune-laws", "searches every law's gains",
+                                        ("compare_laws", "cct", "roa", "delay_margin", "law", "plot"))
                 if args.b is parser.get_default("b"):
                     args.b = [0.3]
                 if len(args.b) != 1 or not 0 < args.b[0] < math.inf:
                     raise CliError("--tune-laws searches at one finite battery limit: --b takes one number > 0")
-                args.laws_compared = LAW_NAMES
             if args.cct:
                 if args.roa or args.plot:
                     raise CliError("--cct prints and writes --json only: it takes neither --roa nor --plot")
