@@ -175,8 +175,10 @@ def test_a_client_sees_the_smib_run_live_as_recorded_and_a_hostile_one_disturbs_
 
 
 def test_a_client_sees_every_run_of_a_composed_network_live(tmp_path):
-    """Kundur's case, composed controllers, two runs in lockstep: the client reconnects per run (as Foxglove
-    does) and each run's measurements and commands of every generator reach it in the recording's order."""
+    """Kundur's case, composed controllers, two runs in lockstep held by --foxglove-wait: the client reconnects
+    per run (as Foxglove does), each run waits for it, and each run's measurements and commands of every generator
+    reach it in the recording's order. (Without the hold a lockstep run is over before a loaded client has
+    subscribed: CI once saw no /gen1/pmu message at all.)"""
     domain, port = fresh_domain_id(), free_port()
     url = f"ws://127.0.0.1:{port}"
     topics = {f"/gen{k}/{name}" for k in range(1, 5) for name in ("pmu", "battery/command")} | {"/nni/run"}
@@ -186,13 +188,15 @@ def test_a_client_sees_every_run_of_a_composed_network_live(tmp_path):
 
     with busy_processes(2):
         demo = start_demo(["--case", "kundur_two_area", "--deployment", "composed", "--mode", "lockstep",
-                           "--b", "0", "0.3", "--duration", "2", "--foxglove", f"127.0.0.1:{port}"], tmp_path, domain)
+                           "--b", "0", "0.3", "--duration", "2", "--foxglove", f"127.0.0.1:{port}",
+                           "--foxglove-wait"], tmp_path, domain)
         try:
             runs = asyncio.run(two_runs())
             out, err = demo.communicate(timeout=240)
         finally:
             demo.kill()
     assert demo.returncode == 0, err
+    assert all(f"run {index} waits for a Foxglove client at {url} to subscribe" in out for index in (1, 2)), out
     for index, (seen, b) in enumerate(zip(runs, ("0", "0.3")), start=1):
         label = json.loads(seen["messages"]["/nni/run"][0][1])
         assert (label["run"], label["case"], label["deployment"], label["b"]) == (index, "kundur_two_area",
@@ -220,6 +224,16 @@ def test_a_bad_foxglove_address_is_one_line_and_starts_nothing(tmp_path, address
                           capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and done.stdout == ""
     assert len(done.stderr.splitlines()) == 1 and expected in done.stderr, done.stderr
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("case", [[], ["--case", "kundur_two_area"]], ids=["smib", "network"])
+def test_foxglove_wait_without_foxglove_is_refused_in_one_line(tmp_path, case):
+    out = tmp_path / "out"
+    done = subprocess.run([str(DEMO), *case, "--foxglove-wait", "--out", str(out)], env=ros_env(fresh_domain_id()),
+                          capture_output=True, text=True, timeout=60)
+    assert (done.returncode, done.stdout, done.stderr.strip()) == (
+        2, "", "nni-demo: error: --foxglove-wait applies only with --foxglove"), done.stderr
     assert not out.exists()
 
 

@@ -6,18 +6,21 @@ the run's key (so that a rogue's messages are streamed apart, as the logger reco
 the run (b, law, case or scenario, mode) on ``/nni/run``. The plant's run is released only once the bridge has
 subscribed to every ``pmu`` and controller topic, and the plant counts it among the readers it waits for: a
 client connected from the start sees every sample. The server is the same address run after run (a client
-reconnects when a run ends: Foxglove does so by itself).
+reconnects when a run ends: Foxglove does so by itself). A lockstep run is over in a fraction of a second, before
+a client that reconnects can subscribe: with ``--foxglove-wait`` each run starts only once a client has subscribed
+to one of its channels (the bridge logs each subscription), and waits for it as long as it takes.
 """
 
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 from nni_msgs_adapter.c37118.profile import address_text, parse_server_address
 from nni_msgs_adapter.ros.cli_support import CliError
 from nni_msgs_adapter.ros.processes import ChildError
-from nni_msgs_adapter.viewing.foxglove_bridge import SERVING_TEXT
+from nni_msgs_adapter.viewing.foxglove_bridge import SERVING_TEXT, SUBSCRIBED_PREFIX
 from nni_battery_controller.demo_common import wait_for_recorder
 
 #: Where ``--foxglove`` without an address serves: Foxglove's default port, on loopback.
@@ -32,11 +35,16 @@ def add_foxglove_option(parser) -> None:
     parser.add_argument("--foxglove", nargs="?", const=DEFAULT_ADDRESS, default=None, metavar="[HOST:]PORT",
                         help="stream every run live to Foxglove over its WebSocket protocol at [HOST:]PORT "
                              f"(alone: {DEFAULT_ADDRESS}; loopback unless a host is named); default: off")
+    parser.add_argument("--foxglove-wait", action="store_true",
+                        help="with --foxglove: start each run only once a Foxglove client has subscribed to it (a "
+                             "lockstep run is otherwise over before a reconnecting client can subscribe)")
 
 
 def foxglove_address(args) -> str | None:
     """The checked ``--foxglove`` address (``host:port``), None without the option; CliError (one line) if bad."""
     if args.foxglove is None:
+        if args.foxglove_wait:
+            raise CliError("--foxglove-wait applies only with --foxglove")
         return None
     try:
         host, port = parse_server_address(args.foxglove, what="--foxglove: a Foxglove server address")
@@ -61,21 +69,25 @@ def start_bridge(procs, address: str | None, env: dict, label: dict, logs: Path)
     return bridge
 
 
-def wait_streaming(bridge, writers: dict, logs: Path) -> None:
-    """Wait until ``bridge`` (None: nothing to wait for) has matched the loop's ``writers`` (as the logger)."""
-    if bridge is not None:
-        wait_for_recorder(bridge, writers, logs, "the Foxglove bridge")
-
-
-def print_url(bridge, index: int) -> None:
-    """At the first run (``index`` 1), print ``Foxglove: ws://...`` as the bridge logged it."""
-    if bridge is None or index != 1:
+def wait_streaming(bridge, writers: dict, logs: Path, index: int, hold: bool) -> None:
+    """Wait until ``bridge`` (None: nothing to wait for) has matched the loop's ``writers`` (as the logger), print
+    its URL at the first run (``index`` 1), and with ``hold`` (``--foxglove-wait``) wait until a client has
+    subscribed to one of the run's channels: every channel is offered by then, so a client that subscribes to
+    all it wants at once (Foxglove does) sees the run from its first sample."""
+    if bridge is None:
         return
-    for line in bridge.output().splitlines():
-        if SERVING_TEXT in line:
-            print(f"  Foxglove: {line.split(SERVING_TEXT, 1)[1].strip()} (Open connection > Foxglove WebSocket; "
-                  "layout: docs/foxglove/)", flush=True)
-            return
+    wait_for_recorder(bridge, writers, logs, "the Foxglove bridge")
+    url = next(line.split(SERVING_TEXT, 1)[1].strip() for line in bridge.output().splitlines() if SERVING_TEXT in line)
+    if index == 1:
+        print(f"  Foxglove: {url} (Open connection > Foxglove WebSocket; layout: docs/foxglove/)", flush=True)
+    if not hold:
+        return
+    print(f"  run {index} waits for a Foxglove client at {url} to subscribe", flush=True)
+    while SUBSCRIBED_PREFIX not in bridge.output():
+        if bridge.poll() is not None:
+            raise CliError(f"the Foxglove bridge exited while run {index} waited for a client: {bridge.last_line()} "
+                           f"(logs in {logs})")
+        time.sleep(0.05)
 
 
 def stated(bridge) -> list:

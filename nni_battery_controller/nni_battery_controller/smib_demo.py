@@ -213,8 +213,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
         plant = procs.start_node("plant", "nni_plant_sim.plant_node", plant_params, env=key_environment(key))
         writers = loop_writers([""], lambda _: "/controller", "/plant")
         wait_for_recorder(logger, writers, logs)
-        demo_foxglove.wait_streaming(foxglove, writers, logs)
-        demo_foxglove.print_url(foxglove, index)
+        demo_foxglove.wait_streaming(foxglove, writers, logs, index, args.foxglove_wait)
         watch = StreamWatch(plant) if args.stream else None
         where = watch.listening() if watch is not None else None
         client = demo_c37118.start_client(procs, where, args.measurements, args.mode, 2, idcode=args.pmu_idcode,

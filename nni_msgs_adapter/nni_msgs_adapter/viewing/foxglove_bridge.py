@@ -31,6 +31,7 @@ import os
 import sys
 
 import foxglove
+from foxglove.websocket import ServerListener
 from rclpy.node import Node
 
 from nni_msgs_adapter.c37118.profile import address_text, parse_server_address
@@ -43,6 +44,9 @@ from nni_msgs_adapter.ros.ros_params import Spec, declared_values
 
 #: Logged (INFO) once a topic is offered, the topic after it (a launcher can wait for these, as for the logger's).
 STREAMING_PREFIX = "streaming topic "
+#: Logged (INFO) each time a client subscribes to a channel, the channel's topic after it (``nni-demo
+#: --foxglove-wait`` holds a run's start until it reads one).
+SUBSCRIBED_PREFIX = "a Foxglove client subscribed to "
 #: Logged (INFO) once the server listens, its ws:// URL after it.
 SERVING_TEXT = "foxglove bridge serving on"
 #: Prefix of the JSON line with per-topic counts printed at exit.
@@ -91,6 +95,16 @@ def ros2_channel(topic: str, type_name: str) -> foxglove.Channel:
     return foxglove.Channel(topic, schema=schema, message_encoding="cdr")
 
 
+class _SubscriptionLog(ServerListener):
+    """Logs each client subscription (the SDK calls this from its own thread; rclpy's logging is thread-safe)."""
+
+    def __init__(self, logger):
+        self._logger = logger
+
+    def on_subscribe(self, client, channel) -> None:
+        self._logger.info(SUBSCRIBED_PREFIX + channel.topic)
+
+
 class FoxgloveBridge(Node):
     """Offers every loop topic it finds on a Foxglove WebSocket server, the rogue's apart."""
 
@@ -103,7 +117,8 @@ class FoxgloveBridge(Node):
         self._key = command_auth.key_from_environment()
         try:
             self._server = foxglove.start_server(name="nni", host=host, port=port,
-                                                 message_backlog_size=int(values["backlog"]))
+                                                 message_backlog_size=int(values["backlog"]),
+                                                 server_listener=_SubscriptionLog(self.get_logger()))
         except Exception as exc:  # the SDK raises its own error types (address in use, ...)
             raise ValueError(f"cannot serve Foxglove on {address_text(host, port)}: {exc}") from None
         self.url = f"ws://{address_text(host, self._server.port)}"
