@@ -1,27 +1,38 @@
-"""``nni-simulate --case CASE --screen``: the command a user types, on one machine, and what it writes and refuses.
+"""``nni-simulate --case CASE --screen``: the command a user types, on one machine and on real Dask processes,
+and what it writes and refuses.
 
-Kundur's two-area system screened completely (every bus fault and line-end fault, two battery limits) in
-this process (``--workers 0``) and on a 2-worker LocalCluster gives the same rows; an interrupted screen
-resumed computes only what was not written; bad input is one line, exit 2, and nothing written.
+Kundur's two-area system screened completely (every bus fault and line-end fault, two battery limits) in this
+process (``--workers 0``, computed once for the module) is the reference of every other path: a 2-worker
+LocalCluster one of whose workers is killed mid-screen, and a cluster of `dask scheduler` and two `dask worker`
+processes on 127.0.0.1 reached with ``--scheduler``, give its rows; an interrupted screen resumed computes only
+what was not written; bad input is one line, exit 2, and nothing written. The Dask tests depend on timing (a kill
+mid-screen, workers joining), so they run with two busy processes beside them; every process a test starts is
+stopped by it.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import signal
+import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import psutil
 import pytest
 from test_verdicts_options import png_title
 
 SIMULATE = str(Path(sys.executable).with_name("nni-simulate"))
+DASK = str(Path(sys.executable).with_name("dask"))
 #: The screen of these tests: Kundur, every contingency, no battery and 0.1 pu, 10 s runs (the defaults).
 SCREEN = ["--case", "kundur_two_area", "--screen", "--b", "0", "0.1"]
 #: Kundur has 11 buses and 12 circuits (24 line ends), of which 8 circuits island it when tripped.
 SCREENED, SKIPPED = 19, 16
+#: A few contingencies of each kind for the --scheduler run (its workers are the test's).
+SOME = ["bus:7", "bus:9", "line:7-8:1@7", "line:8-9:2@9"]
 
 
 def screen(*args, timeout=300):
@@ -69,13 +80,88 @@ def test_the_serial_screen_prints_the_weakest_per_b_writes_every_row_the_figures
     assert len(list((folder / "rows").glob("part-*.parquet"))) == SCREENED
 
 
-def test_a_two_worker_local_cluster_gives_the_serial_paths_rows(serial, tmp_path):
-    result = screen("--workers", "2", "--json", str(tmp_path / "cluster.json"))
+def workers_of(pid: int) -> list:
+    """The LocalCluster's worker processes: the command's children started by multiprocessing's spawn."""
+    return [child for child in psutil.Process(pid).children(recursive=True)
+            if "spawn_main" in " ".join(child.cmdline())]
+
+
+def test_a_two_worker_local_cluster_gives_the_serial_rows_though_a_worker_is_killed_mid_screen(serial, tmp_path,
+                                                                                              busy):
+    out = tmp_path / "out"
+    proc = subprocess.Popen([SIMULATE, *SCREEN, "--workers", "2", "--out", str(out), "--json",
+                             str(tmp_path / "cluster.json")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not list((out / "rows").glob("part-*.parquet")) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        workers = workers_of(proc.pid)
+        assert len(workers) == 2, [w.cmdline() for w in workers]
+        victim = workers[0]
+        os.kill(victim.pid, signal.SIGKILL)  # mid-screen: one part written, 18 contingencies to go
+        written_at_kill = len(list((out / "rows").glob("part-*.parquet")))
+        stdout, stderr = proc.communicate(timeout=240)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, stderr
+    assert "tasks on a LocalCluster started here, 2 workers" in stderr
+    assert "computed by LocalCluster, 2 workers, task overhead" in stdout
+    assert not psutil.pid_exists(victim.pid) or victim.status() == psutil.STATUS_ZOMBIE
+    assert written_at_kill < 19
+    rows = json.loads((tmp_path / "cluster.json").read_text())["rows"]
+    assert len(rows) == 38 and len(list((out / "rows").glob("part-*.parquet"))) == 19
+    assert rows == serial[1]["rows"]  # every contingency, every b: the same CCTs, verdicts, generators
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+@pytest.fixture
+def dask_cluster(tmp_path):
+    """A `dask scheduler` and two `dask worker` processes on 127.0.0.1 (free ports); its address."""
+    port = free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    logs = [open(tmp_path / f"{name}.log", "w") for name in ("scheduler", "worker1", "worker2")]
+    procs = [subprocess.Popen([DASK, "scheduler", "--host", "127.0.0.1", "--port", str(port),
+                               "--dashboard-address", "127.0.0.1:0"], stdout=logs[0], stderr=subprocess.STDOUT)]
+    try:
+        for log in logs[1:]:
+            procs.append(subprocess.Popen([DASK, "worker", address, "--host", "127.0.0.1", "--nthreads", "1",
+                                           "--nworkers", "1", "--dashboard-address", "127.0.0.1:0"],
+                                          stdout=log, stderr=subprocess.STDOUT))
+        from distributed import Client
+
+        with Client(address, timeout=60) as client:
+            client.wait_for_workers(2, timeout=120)
+        yield address
+    finally:
+        for proc in reversed(procs):
+            proc.terminate()
+        for proc in reversed(procs):
+            try:
+                proc.wait(30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        for log in logs:
+            log.close()
+
+
+def test_a_screen_through_scheduler_runs_on_the_clusters_two_workers(serial, tmp_path, dask_cluster, busy):
+    result = subprocess.run([SIMULATE, *SCREEN, "--contingencies", *SOME, "--scheduler", dask_cluster, "--json",
+                             str(tmp_path / "remote.json")], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
-    assert "tasks on a LocalCluster started here, 2 workers" in result.stderr
-    assert "computed by LocalCluster, 2 workers, task overhead" in result.stdout
-    cluster = json.loads((tmp_path / "cluster.json").read_text())
-    assert cluster["rows"] == serial[1]["rows"]  # every contingency, every b: the same CCTs, verdicts, generators
+    assert f"4 tasks on the Dask scheduler at {dask_cluster}, 2 workers" in result.stderr
+    assert "computed by scheduler, 2 workers" in result.stdout
+    rows = json.loads((tmp_path / "remote.json").read_text())["rows"]
+    assert [row["contingency"] for row in rows] == [name for name in SOME for _ in range(2)]
+    assert rows == [row for row in serial[1]["rows"] if row["contingency"] in SOME]
 
 
 def parts(folder: Path) -> dict:
