@@ -173,6 +173,68 @@ def test_compare_laws_refuses_what_does_not_apply():
         assert done.returncode == 2 and message in done.stderr, done.stderr
 
 
+def test_compare_laws_on_a_network_gives_every_law_per_reference_and_b_and_the_cct_of_cct(tmp_path):
+    from test_verdicts_options import png_title
+
+    simulate = [sys.executable, "-m", "nni_battery_controller.simulate_command", "--case", "kundur_two_area"]
+    out_json, out_png = tmp_path / "cmp.json", tmp_path / "cmp.png"
+    done = subprocess.run([*simulate, "--compare-laws", "--b", "0", "0.3", "--reference", "pmu", "coi", "--duration",
+                           "4", "--json", str(out_json), "--plot", str(out_png)], capture_output=True, text=True,
+                          timeout=240)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("Battery laws compared, kundur_two_area: bus fault at bus 7")
+    rows = [line.split() for line in done.stdout.splitlines() if line.split()[:2] in (["0", "pmu"], ["0.3", "pmu"],
+                                                                                      ["0", "coi"], ["0.3", "coi"])]
+    assert [tuple(r[:3]) for r in rows] == [(b, ref, name) for ref in ("pmu", "coi") for b in ("0", "0.3")
+                                            for name in LAW_NAMES]
+    data = __import__("json").loads(out_json.read_text())
+    assert set(data) == {"case", "generators", "mbase_mva", "scenario", "description", "rate_hz", "duration_s",
+                         "cct_max_s", "tolerance_s", "rows"}
+    assert set(data["rows"][0]) == {"reference", "law", "b", "verdict", "in_synchronism", "settled",
+                                    "settling_time_s", "energy_mwh", "energy_mwh_per_generator", "time_saturated_s",
+                                    "cct_s", "cct_bracket_s", "at_search_limit", "gains"}
+    # No battery: every law is the same machine, and nothing is moved or saturated.
+    for ref in ("pmu", "coi"):
+        no_battery = [row for row in data["rows"] if row["b"] == 0.0 and row["reference"] == ref]
+        assert len({row["cct_s"] for row in no_battery}) == 1 and len(no_battery) == len(LAW_NAMES)
+        assert all(row["energy_mwh"] == 0 and row["time_saturated_s"] is None for row in no_battery)
+    # The nni law's CCT is what --cct finds for the same fault, b and reference.
+    cct = subprocess.run([*simulate, "--cct", "--b", "0.3", "--reference", "pmu", "coi", "--duration", "4"],
+                         capture_output=True, text=True, timeout=120)
+    assert cct.returncode == 0, cct.stderr
+    found = {line.split()[1]: float(line.split()[2]) for line in cct.stdout.splitlines()
+             if line.split()[:1] == ["0.3"]}
+    assert {row["reference"]: row["cct_s"] for row in data["rows"] if row["b"] == 0.3 and row["law"] == "nni"} \
+        == found
+    battery = [row for row in data["rows"] if row["b"] == 0.3]
+    assert all(len(row["energy_mwh_per_generator"]) == 4 and row["energy_mwh"] > 0 for row in battery)
+    assert png_title(out_png) == "kundur_two_area: critical clearing time per battery law, sampled at 50 Hz"
+
+
+def test_a_cct_search_whose_every_candidate_is_lost_at_once_says_none():
+    """The tuned droop gain (562 pu, picked at b = 0.3 where the limit tames it) is unstable unsaturated on IEEE 39
+    at 50 Hz: every candidate clearing time is lost at the same sample. The search once failed there with
+    numpy's "zero-size array to reduction operation minimum" (the fault narrowed to no run)."""
+    done = subprocess.run([sys.executable, "-m", "nni_battery_controller.simulate_command", "--case", "ieee39", "--cct",
+                           "--b", "inf", "--law", "droop", "--duration", "2"], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert [line.split() for line in done.stdout.splitlines()][2] == ["inf", "pmu", "none"], done.stdout
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--law", "droop"], "--compare-laws runs every law: it takes no --law"),
+    (["--cct"], "--compare-laws runs every law: it takes no --cct"),
+    (["--scenario", "line_trip", "--trip-line", "7", "8"], "--compare-laws applies to --scenario bus_fault only"),
+    (["--link-delay", "0.01"], "it takes no --link-* option"),
+    (["--screen"], "--compare-laws does not apply to --screen"),
+])
+def test_network_compare_laws_refuses_what_does_not_apply(argv, message):
+    done = subprocess.run([sys.executable, "-m", "nni_battery_controller.simulate_command", "--case",
+                           "kundur_two_area", "--compare-laws", *argv], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and message in done.stderr and len(done.stderr.splitlines()) == 1, done.stderr
+
+
 def test_every_law_gets_the_same_budget_and_its_grid_holds_the_shipped_gains():
     from nni_battery_controller.law_tuning import BUDGET, candidates
     from nni_msgs_adapter.ros.defaults import controller_defaults

@@ -1,4 +1,5 @@
-"""``nni-simulate --compare-laws``: every battery law on the same SMIB, battery limit and PMU rate.
+"""``nni-simulate --compare-laws``: every battery law on the same plant (the SMIB or a network), battery limit
+and PMU rate.
 
 Per law and battery limit b, the sampled-data run of the scenario (the paper's
 case by default) at the plant node's PMU rate: its verdict and settling time,
@@ -7,14 +8,22 @@ rating) and its time in saturation (|demand| >= b, summed over the held
 periods); and the critical clearing time of the transfer-limit fault by the
 bisection of ``--cct`` (:func:`.smib_study.smib_cct`), every law through the
 same code. The region-of-attraction sweep is not part of the comparison yet
-(the ``--roa`` sweep is the continuous nni law's). Pure python: no ROS import.
+(the ``--roa`` sweep is the continuous nni law's).
+
+A network (``--case``): per angle reference, law and b (the same at every generator), the sampled run of the
+bus fault (its verdict, the last generator's settling time, the energy every battery moved in MWh, the longest
+time a battery spent saturated) and the fault's CCT by ``--cct``'s vectorised bisection
+(:func:`.network_sim.critical_clearing_times`). Pure python: no ROS import.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from nni_battery_controller.laws import LAW_NAMES
+from nni_battery_controller.network_sim import network_verdict
 from nni_battery_controller.verdicts import assess, verdict_text
 
 #: MWh per pu s on a 100 MVA rating: 100 MW for one second is 100/3600 MWh.
@@ -49,6 +58,61 @@ def compare(laws_by_b, simulate_run, cct_of) -> list[dict]:
     return rows
 
 
+def network_run_summary(traj, run: int, outcome) -> dict:
+    """Run ``run`` of a network trajectory with its :class:`.network_sim.NetworkOutcome`: the verdict, the
+    settling time (of the last generator to settle), the energy each battery moved and the longest saturation;
+    a run that lost synchronism up to its pole slip (past it the machines, and an unlimited battery chasing
+    them, run away: the energy of a diverging run means nothing)."""
+    net, t = traj.net, traj.t_s
+    period = float(t[1] - t[0])
+    end = t.size - 1 if outcome.in_synchronism else int(np.searchsorted(t, outcome.pole_slip_s))
+    held = np.abs(traj.battery_power_pu[:end, :, run])  # system base, each held one period
+    energy_mwh = held.sum(axis=0) * period * net.base_mva / 3600.0
+    saturated = traj.saturated[:end, :, run].sum(axis=0) * period
+    settle = max(g.settling_time_s for g in outcome.generators) if outcome.settled else None
+    return {"verdict": network_verdict(outcome), "in_synchronism": outcome.in_synchronism,
+            "settled": outcome.settled, "settling_time_s": settle, "energy_mwh": float(energy_mwh.sum()),
+            "energy_mwh_per_generator": [float(e) for e in energy_mwh],
+            "time_saturated_s": float(saturated.max()) if np.any(traj.limits_pu[:, run] > 0) else None}
+
+
+def compare_network(limits, laws, simulate_runs, ccts_of) -> list[dict]:
+    """Rows ``{reference, law, b, run..., cct_s, cct_bracket_s, at_search_limit, gains}`` for ``laws``
+    ({reference: [NetworkLaw, ...]}) at every b of ``limits``: ``simulate_runs(law)`` returns the trajectory
+    and outcomes of every b (one vectorised run), ``ccts_of(law)`` :func:`.network_sim.critical_clearing_times`'
+    ``(cct or None, bracket, at_limit)`` per b."""
+    rows = []
+    for reference, mine in laws.items():
+        by_b = {}
+        for law in mine:
+            traj, outcomes = simulate_runs(law)
+            for r, (b, (cct, bracket, at_limit)) in enumerate(zip(limits, ccts_of(law))):
+                by_b.setdefault(r, []).append({
+                    "reference": reference, "law": law.name, "b": "inf" if math.isinf(b) else b,
+                    **network_run_summary(traj, r, outcomes[r]), "cct_s": cct, "cct_bracket_s": list(bracket),
+                    "at_search_limit": bool(at_limit), "gains": law.laws()[0].gain_values()})
+        rows += [row for r in sorted(by_b) for row in by_b[r]]
+    return rows
+
+
+def format_network_rows(rows) -> str:
+    """The network comparison as a fixed-width table, grouped by reference and b."""
+    def num(value, fmt):
+        return "-" if value is None else fmt.format(value)
+
+    header = (f"{'b (pu)':>7} {'reference':>9} {'law':>16} {'CCT (s)':>8} {'settle (s)':>10} {'energy (MWh)':>12} "
+              f"{'saturated (s)':>13}  verdict")
+    lines = [header, "-" * (len(header) + 24)]
+    for row in rows:
+        b = math.inf if row["b"] == "inf" else row["b"]
+        cct = "none" if row["cct_s"] is None else (f">={row['cct_s']:.3f}" if row["at_search_limit"]
+                                                   else f"{row['cct_s']:.3f}")
+        lines.append(f"{b:>7g} {row['reference']:>9} {row['law']:>16} {cct:>8} "
+                     f"{num(row['settling_time_s'], '{:.3f}'):>10} {row['energy_mwh']:>12.3f} "
+                     f"{num(row['time_saturated_s'], '{:.3f}'):>13}  {row['verdict']}")
+    return "\n".join(lines)
+
+
 def format_rows(rows) -> str:
     """The comparison as a fixed-width table, grouped by b."""
     def num(value, fmt):
@@ -66,7 +130,7 @@ def format_rows(rows) -> str:
 
 
 def comparison_figure(rows, title: str):
-    """CCT against b, one line per law (b = inf drawn at the right edge, labelled)."""
+    """CCT against b, one line per law and (a network's rows) angle reference (b = inf drawn at the right edge)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -74,15 +138,20 @@ def comparison_figure(rows, title: str):
 
     finite = sorted({row["b"] for row in rows if row["b"] != "inf"})
     edge = (max(finite) * 1.25 if finite and max(finite) > 0 else 1.0)
+    references = list(dict.fromkeys(row.get("reference") for row in rows))
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    for name in LAW_NAMES:
-        mine = [row for row in rows if row["law"] == name]
-        if not mine:
-            continue
-        xs = [edge if row["b"] == "inf" else row["b"] for row in mine]
-        ax.plot(xs, [row["cct_s"] for row in mine], marker="o", label=name)
+    for reference in references:
+        for name in LAW_NAMES:
+            mine = [row for row in rows if row["law"] == name and row.get("reference") == reference]
+            if not mine:
+                continue
+            xs = [edge if row["b"] == "inf" else row["b"] for row in mine]
+            ax.plot(xs, [math.nan if row["cct_s"] is None else row["cct_s"] for row in mine], marker="o",
+                    linestyle="-" if reference == references[0] else "--", color=f"C{LAW_NAMES.index(name)}",
+                    label=name if len(references) == 1 else f"{name}, {reference}")
     ax.set_xlabel("battery limit b (pu; the rightmost point: unlimited)")
-    ax.set_ylabel("critical clearing time (s)")
+    ax.set_ylabel("critical clearing time (s)" + (", at least where at the search limit"
+                                                  if any(row.get("at_search_limit") for row in rows) else ""))
     ax.grid(True, alpha=0.3)
     ax.legend()
     fig.suptitle(title)

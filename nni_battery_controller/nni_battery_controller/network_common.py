@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from nni_msgs_adapter.ros.cli_support import CliError, finite_float, float_within, positive_float
+from nni_battery_controller.network_sim import network_verdict
 from nni_plant_sim.cases import DEFAULT_FAULT_BUS
 from nni_plant_sim.network_scenarios import (
     NETWORK_SCENARIOS,
@@ -123,9 +124,7 @@ def limit_words(b) -> str:
 
 def format_run(outcome, b, reference, net) -> str:
     """One run's table: the system verdict line, then one row per generator."""
-    verdict = ("in synchronism" if outcome.in_synchronism else f"LOST SYNCHRONISM at {outcome.pole_slip_s:.2f} s") \
-        + (", settled" if outcome.settled else ", not settled")
-    head = f"{limit_words(b)}, reference {reference}: {verdict} (max angle spread " \
+    head = f"{limit_words(b)}, reference {reference}: {network_verdict(outcome)} (max angle spread " \
            f"{math.degrees(outcome.max_angle_spread_rad):.1f} deg, final COI frequency deviation " \
            f"{outcome.final_coi_frequency_hz:+.3f} Hz)"
     header = f"  {'generator':<9} {'in sync':>7} {'settled':>7} {'settle (s)':>10} {'max|P_ST| (pu)':>14} " \

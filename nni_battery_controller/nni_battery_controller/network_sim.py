@@ -228,12 +228,12 @@ def simulate_network(net: Network, law: NetworkLaw, scenario, limits_pu_mbase, d
         power[k][:, active], w[k][:, active], saturated[k][:, active] = np.array(line.powers), step[1], step[2]
         if drop_lost_runs and np.any(lost := angle_spread(x[0][None])[0] > POLE_SLIP_RAD):
             keep = ~lost
+            if not keep.any():  # every run decided (a scenario narrowed to none is no scenario)
+                break
             active, x = active[keep], x[:, :, keep]
             line.narrow(keep)
             controller = controller.narrowed(keep)
             scenario = scenario.narrowed(keep)
-            if active.size == 0:
-                break
         if k < n:
             x = integrate_through(line, piece, float(t[k]), float(t[k + 1]), x)
     return NetworkTrajectory(net, t, delta, speed, power, w, saturated == 1.0, limits)
@@ -284,6 +284,12 @@ class NetworkOutcome:
 def angle_spread(delta_rad: np.ndarray) -> np.ndarray:
     """Largest pairwise angle difference max_i delta_i - min_i delta_i over generators (axis 1)."""
     return delta_rad.max(axis=1) - delta_rad.min(axis=1)
+
+
+def network_verdict(outcome) -> str:
+    """``in synchronism, settled`` / ``..., not settled`` / ``LOST SYNCHRONISM at T s, ...`` (as a run's table)."""
+    return (("in synchronism" if outcome.in_synchronism else f"LOST SYNCHRONISM at {outcome.pole_slip_s:.2f} s")
+            + (", settled" if outcome.settled else ", not settled"))
 
 
 def assess_network(traj: NetworkTrajectory, settle_band_rad: float = SETTLE_BAND_RAD) -> list[NetworkOutcome]:

@@ -7,7 +7,9 @@ reference, with the sampled-data H3-hat at every generator; prints one table
 per run with per-generator verdicts, writes JSON and a figure; ``--cct`` finds
 the critical clearing time of the bus fault per b instead, ``--delay-margin``
 the largest fixed measurement-to-command delay that keeps the network in
-synchronism. The runs take a communication link (``--link-*``, the same at
+synchronism, ``--compare-laws`` every battery law side by side (the run's verdict,
+settling, battery energy and saturation, and the CCT, per b and reference:
+:mod:`nni_battery_controller.law_comparison`). The runs take a communication link (``--link-*``, the same at
 every generator, the draws its own per generator). ``--screen`` screens every
 contingency of the case instead (:mod:`nni_battery_controller.screen_study`).
 """
@@ -19,7 +21,9 @@ import time
 from pathlib import Path
 
 from nni_battery_controller import screen_study
-from nni_battery_controller.figures import plot_network
+from nni_battery_controller.figures import plot_network, save_png
+from nni_battery_controller.law_comparison import comparison_figure, compare_network, format_network_rows
+from nni_battery_controller.laws import LAW_NAMES
 from nni_battery_controller.margins import DELAY_MARGIN_TOLERANCE_S, DELAY_SCAN_STEP_S, delay_margins
 from nni_battery_controller.network_common import (
     DEFAULT_LIMITS,
@@ -36,7 +40,13 @@ from nni_battery_controller.network_sim import (
     critical_clearing_times,
     simulate_network,
 )
-from nni_battery_controller.options import add_link_options, add_network_law_options, link_of, network_laws_of
+from nni_battery_controller.options import (
+    add_link_options,
+    add_network_law_options,
+    given_link_options,
+    link_of,
+    network_laws_of,
+)
 from nni_battery_controller.study_common import (
     DEFAULT_DELAY_MAX_S,
     delay_margin_row,
@@ -80,6 +90,10 @@ def build_parser() -> OneLineParser:
                         help="critical clearing time of the bus fault per b (bisection to 1 ms), instead of runs")
     parser.add_argument("--cct-max", type=float_within(0.002, 5.0, "s"), default=1.0,
                         help="--cct: longest clearing time tried, s (default 1)")
+    parser.add_argument("--compare-laws", action="store_true",
+                        help=f"every battery law ({', '.join(LAW_NAMES)}) per b and reference, instead of runs: the "
+                             "bus fault's verdict, settling time, battery energy (MWh), time saturated and CCT "
+                             "(as --cct); a table, --json, --plot the CCT against b")
     parser.add_argument("--delay-margin", action="store_true",
                         help="the largest fixed measurement-to-command delay (the link's) that keeps the network in "
                              "synchronism per b and reference, instead of runs: scan by --delay-step up to "
@@ -140,9 +154,53 @@ def _refuse_foreign_options(args) -> None:
         raise CliError("--plot does not apply to --cct (it draws time series of runs)")
     if args.cct and args.clearing_time is not None:
         raise CliError("--clearing-time does not apply to --cct (it searches the clearing time)")
+    if args.compare_laws:
+        for flag in ("cct", "delay_margin", "law"):
+            if getattr(args, flag):
+                raise CliError(f"--compare-laws runs every law: it takes no --{flag.replace('_', '-')}")
+        if args.scenario != "bus_fault":
+            raise CliError("--compare-laws applies to --scenario bus_fault only (its CCT is the bus fault's)")
+        if given_link_options(args):
+            raise CliError("--compare-laws runs every law without a link: it takes no --link-* option")
     if args.delay_margin:
         refuse_beside_delay_margin(args, ("cct", "plot", "link_delay"))
     resolve_delay_span(args)
+
+
+def run_compare_laws(args, net, scenario, description, factory, started: float) -> int:
+    """``--case CASE --compare-laws``: every law per reference and b, the bus fault's run and its CCT."""
+    laws = {ref: list(network_laws_of(args, net, ref, LAW_NAMES).values()) for ref in args.reference}
+    print(f"Battery laws compared, {args.case}: {description}; every law sampled at {args.controller_rate:g} Hz at "
+          f"every generator (b the same at each), {args.duration:g} s; CCT: the bus fault's (as --cct, up to "
+          f"{args.cct_max:g} s, 1 ms); energy: integral of |P_ST| dt over every battery")
+    for law in laws[args.reference[0]]:
+        print(f"  {law.describe()}")
+
+    def simulate_runs(law):
+        traj = simulate_network(net, law, scenario, args.b, args.duration, args.controller_rate)
+        return traj, assess_network(traj)
+
+    def ccts_of(law):
+        return critical_clearing_times(net, law, factory, args.b, args.duration, args.controller_rate,
+                                       high_s=args.cct_max)
+
+    rows = compare_network(args.b, laws, simulate_runs, ccts_of)
+    print(format_network_rows(rows))
+    print("settle: the last generator to settle; saturated: the longest any battery was at +-b; a run that lost "
+          "synchronism: energy and saturation up to its pole slip; CCT none: even the shortest clearing time loses "
+          "synchronism")
+    print(f"({time.perf_counter() - started:.1f} s)")
+    if args.json:
+        write_json(args.json, {"case": args.case, "generators": list(net.names), "mbase_mva": net.mbase_mva.tolist(),
+                               "scenario": args.scenario, "description": description,
+                               "rate_hz": args.controller_rate, "duration_s": args.duration,
+                               "cct_max_s": args.cct_max, "tolerance_s": 1e-3, "rows": rows})
+        print(f"wrote {args.json}")
+    if args.plot:
+        save_png(comparison_figure(rows, f"{args.case}: critical clearing time per battery law, sampled at "
+                                         f"{args.controller_rate:g} Hz"), args.plot)
+        print(f"wrote {args.plot}")
+    return 0
 
 
 def main(argv=None) -> int:
@@ -157,6 +215,8 @@ def main(argv=None) -> int:
         started = time.perf_counter()
         net = load_network(args.case, args.machines, args.f0)
         scenario, description, factory = make_scenario(net, args)
+        if args.compare_laws:
+            return run_compare_laws(args, net, scenario, description, factory, started)
         name = args.law or controller_defaults()["law"]
         laws = {ref: network_laws_of(args, net, ref, (name,))[name] for ref in args.reference}
         link = link_of(args)

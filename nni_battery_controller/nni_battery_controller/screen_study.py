@@ -44,6 +44,7 @@ SCREEN_ONLY = ("contingencies", "contingency_file", "laws", "workers", "schedule
 #: Options of the network study that a screen does not take, and why.
 NOT_WITH_SCREEN = {
     "cct": "a screen finds every contingency's critical clearing time",
+    "compare_laws": "a screen compares the laws of --laws contingency by contingency",
     "law": "a screen takes its laws with --laws",
     **{option.name: "a screen runs the speed laws with the controller node's default gains" for option in
        LAW_GAIN_OPTIONS},
