@@ -37,7 +37,13 @@ Each table sets a measurement beside a baseline taken in the same run:
     overhead share), contingencies per second for IEEE 39, 118 and 300, the
     full IEEE 39 N-1 screen, and one contingency's bisection beside ANDES';
 12. the SMIB lockstep loop with a Foxglove bridge and a client that never
-    reads, beside the same loop alone (alternating rounds).
+    reads, beside the same loop alone (alternating rounds);
+13. ``nni-simulate --compare-laws`` on the SMIB beside the same trajectories
+    integrated one at a time by scipy's solve_ivp, and the network
+    comparisons' (Kundur, IEEE 39) wall time.
+
+``--only`` reruns some: their sections replace their namesakes in the page
+(``--out``) and every other section stays as the earlier run wrote it.
 
 Node processes are started exactly as ``nni-demo`` starts them; discovery stays
 on localhost (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST) in a ROS domain of the
@@ -58,13 +64,14 @@ from bench.foxglove import bench_foxglove
 from bench.common import NETWORK_RATE_HZ, ROOT
 from bench.c37118_loop import bench_c37118_loop
 from bench.c37118_server import FRAMES as C37118_SERVER_FRAMES, bench_c37118_server
+from bench.law_comparison import bench_law_comparison
 from bench.latency import bench_controller_share, bench_latency
 from bench.lockstep import bench_lockstep
 from bench.machine import machine_description
 from bench.network_lockstep import NETWORK_LOCKSTEP_CASES, NETWORK_LOCKSTEP_QUICK_CASES, bench_network_lockstep
 from bench.network_profile import PROFILE_QUICK_RUN, PROFILE_RUN, bench_network_profile
 from bench.network_realtime import bench_network_realtime
-from bench.report import report
+from bench.report import report, splice
 from bench.roa import bench_roa
 from bench.screening import ANDES_PYTHON, bench_screening
 from nni_msgs_adapter.ros.command_auth import KEY_FILE_ENV, run_key
@@ -75,7 +82,7 @@ from nni_msgs_adapter.ros.processes import ChildError
 ROUNDS = 3
 #: What --only selects (all by default).
 BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime", "network-profile", "c37118-loop",
-              "command-auth", "c37118-server", "screening", "foxglove")
+              "command-auth", "c37118-server", "screening", "foxglove", "law-comparison")
 
 
 def parse_args(argv=None):
@@ -130,6 +137,8 @@ def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates, domain_i
         results["screening"] = bench_screening(quick, andes_python)
     if "foxglove" in only:
         results["foxglove"] = bench_foxglove(env, log_root, 10.0 if quick else 30.0, 3 if quick else 5)
+    if "law-comparison" in only:
+        results["law-comparison"] = bench_law_comparison(quick)
     return results
 
 
@@ -148,6 +157,8 @@ def main(argv=None) -> int:
                                  args.andes_python)
     machine["load_average_at_end"] = os.getloadavg()
     text = report(command, machine, args.quick, results, started_text, time.monotonic() - started)
+    if set(args.only) != set(BENCHMARKS) and args.out.exists():
+        text = splice(args.out.read_text(), text, command, started_text)
     tmp = args.out.with_name(args.out.name + ".part")
     tmp.write_text(text)
     tmp.replace(args.out)
