@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from bench.report import report
+from bench.report import report, splice
 
 MACHINE = {"cpu": "test CPU", "cores": 2, "kernel": "6.1", "python": "3.11", "packages": {"numpy": "2"},
            "rmw": "rmw_fastrtps_cpp (default)", "executor": "EventsExecutor", "domain_id": 70,
@@ -16,7 +16,8 @@ HEADINGS = ["## 1. Closed-loop latency", "### 1b. The controller's share", "## 2
             "## 9. Authenticated commands and measurements",
             "## 10. C37.118 PMU server: frames per second and reporting latency",
             "## 11. Contingency screen: serial beside a 2-worker LocalCluster",
-            "## 12. The Foxglove bridge and a client that never reads"]
+            "## 12. The Foxglove bridge and a client that never reads",
+            "## 13. Law comparison beside a per-trajectory scipy loop"]
 
 
 def latency_row(rate_hz: float, p50_ratio: float, misses: int = 0) -> dict:
@@ -87,6 +88,7 @@ def results(latency_ratio: float = 1.2, network_ratio: float = 1.8) -> dict:
         "c37118-server": c37118_server_result(3.0),
         "screening": screening_result(40.0, 0.5),
         "foxglove": foxglove_result(),
+        "law-comparison": law_comparison_result(26.0),
     }
 
 
@@ -343,3 +345,35 @@ def test_the_never_reading_client_is_judged_against_a_reading_one_and_the_noise(
     assert f"The never-reading client: {words}" in text
     assert "| a client that never reads, beside one that reads | 16.0 / " in text
     assert "Streaming itself: 1.50 (**beyond the noise**" in text
+
+
+def law_comparison_result(ieee39_s: float, scipy_cct: float = 0.187) -> dict:
+    return {"argv": "--compare-laws --b 0 0.2 0.3 inf --duration 10", "ours_s": 6.0, "trajectories": 360,
+            "scipy_s": 4.0, "scipy_runs": 51, "per_trajectory_ms": 78.4, "ours_per_trajectory_ms": 16.7,
+            "scipy_extrapolated_s": 28.2, "checked": [{"law": "nni", "scipy_cct_s": scipy_cct, "ours": "0.187",
+                                                     "runs": 17}],
+            "networks": {"ieee39": {"wall_s": ieee39_s, "args": "--case ieee39 --compare-laws", "error": None}}}
+
+
+@pytest.mark.parametrize("ieee39_s, scipy_cct, verdicts", [
+    (26.0, 0.187, ("IEEE 39's 26 s < 300 s: met", "the baseline's CCTs equal ours: met")),
+    (320.0, 0.188, ("IEEE 39's 320 s < 300 s: **not met**", "the baseline's CCTs equal ours: **not met**")),
+])
+def test_the_law_comparison_is_set_beside_scipy_and_judged_on_its_wall_times(ieee39_s, scipy_cct, verdicts):
+    text = page({"law-comparison": law_comparison_result(ieee39_s, scipy_cct)})
+    assert "| 6.00 | 360 | 16.7 | 78.4 | 28 | 4.7x |" in text
+    assert "the SMIB comparison 6.0 s < 60 s: met" in text
+    for words in verdicts:
+        assert words in text
+
+
+def test_a_rerun_of_some_benchmarks_replaces_only_their_sections_and_says_so():
+    earlier = page({key: value for key, value in results().items() if key != "law-comparison"})
+    rerun = page({"law-comparison": law_comparison_result(26.0), "roa": results()["roa"]})
+    spliced = splice(earlier, rerun, "bench/run_all --only roa law-comparison", "2026-02-02 00:00 UTC")
+    places = [spliced.index(heading) for heading in HEADINGS]
+    assert places == sorted(places)  # every earlier section kept, in order, the new one after them
+    assert spliced.count("> Rerun alone by `bench/run_all --only roa law-comparison` on 2026-02-02 00:00 UTC") == 2
+    untouched = earlier[earlier.index(HEADINGS[0]):earlier.index(HEADINGS[3])]
+    assert untouched in spliced
+    assert spliced.startswith(earlier[:earlier.index(HEADINGS[0])])  # the earlier head and machine section
