@@ -40,7 +40,8 @@ def run_summary(traj, scenario) -> dict:
     return {"verdict": verdict_text(outcome), "in_synchronism": outcome["in_synchronism"],
             "settled": outcome["settled"], "settling_time_s": outcome["settling_time_s"],
             "energy_pu_s": energy, "energy_mwh_per_100mva": energy * MWH_PER_PU_S_100MVA,
-            "time_saturated_s": saturated if traj.ctrl.battery_limit_pu > 0 else None}
+            "time_saturated_s": saturated if traj.ctrl.battery_limit_pu > 0 else None,
+            **({} if traj.charge_pu_s is None else {"battery_empty_at_s": traj.empty_at_s})}
 
 
 def compare(laws_by_b, simulate_run, cct_of) -> list[dict]:
@@ -118,14 +119,16 @@ def format_rows(rows) -> str:
     def num(value, fmt):
         return "-" if value is None else fmt.format(value)
 
+    empties = bool(rows) and "battery_empty_at_s" in rows[0]
     header = (f"{'b (pu)':>7} {'law':>16} {'CCT (s)':>8} {'settle (s)':>10} {'energy (pu s)':>13} "
-              f"{'saturated (s)':>13}  verdict")
+              f"{'saturated (s)':>13}" + (f" {'empty at (s)':>12}" if empties else "") + "  verdict")
     lines = [header, "-" * (len(header) + 24)]
     for row in rows:
         b = math.inf if row["b"] == "inf" else row["b"]
         cct = f"{row['cct_s']:.3f}" if row["cct_slips_s"] is not None else f">={row['cct_s']:.3f}"
+        empty = f" {num(row['battery_empty_at_s'], '{:.3f}'):>12}" if empties else ""
         lines.append(f"{b:>7g} {row['law']:>16} {cct:>8} {num(row['settling_time_s'], '{:.3f}'):>10} "
-                     f"{row['energy_pu_s']:>13.4f} {num(row['time_saturated_s'], '{:.3f}'):>13}  {row['verdict']}")
+                     f"{row['energy_pu_s']:>13.4f} {num(row['time_saturated_s'], '{:.3f}'):>13}{empty}  {row['verdict']}")
     return "\n".join(lines)
 
 

@@ -47,6 +47,7 @@ from nni_battery_controller.law import (
 )
 from nni_battery_controller.laws import Law
 from nni_plant_sim.integrators import advance
+from nni_plant_sim.battery import EnergyStore
 from nni_plant_sim.link import NO_LINK, DelayLine, Link, integrate_through
 from nni_plant_sim.model import SmibParams
 
@@ -76,6 +77,8 @@ class Trajectory:
     switch_times_s : instants where the mode changed, located as events
         (continuous runs; |w| = b there). Empty for sampled runs, whose mode
         changes only at samples.
+    charge_pu_s : a battery of finite energy's charge at each sample, pu s from empty (None: no energy limit).
+    empty_at_s : when that battery first ran empty (None: it did not, or no limit).
     """
 
     plant: SmibParams
@@ -89,6 +92,8 @@ class Trajectory:
     saturated: np.ndarray
     switch_times_s: np.ndarray
     law: str = "nni"
+    charge_pu_s: np.ndarray | None = None
+    empty_at_s: float | None = None
 
     @property
     def angle_dev_rad(self) -> np.ndarray:
@@ -305,6 +310,7 @@ def simulate_sampled(
     max_step_s: float = 1e-3,
     link: Link = NO_LINK,
     law: Law | None = None,
+    battery_energy_pu_s: float = math.inf,
 ) -> Trajectory:
     """Sampled-data closed loop at ``rate_hz``: the controller node's law, offline.
 
@@ -320,9 +326,14 @@ def simulate_sampled(
     ``link``: the answer to sample k takes effect at t_k + d_k, or is lost (the
     command in force stays); the plant is integrated piecewise between those
     instants, as the plant's reporting core does (:class:`nni_plant_sim.link.DelayLine`).
+
+    ``battery_energy_pu_s``: a battery of that much energy to deliver and as much room to absorb
+    (:mod:`nni_plant_sim.battery`; inf: no limit); an empty battery delivers nothing. The trajectory's
+    ``battery_power_pu`` is then what the battery gives at each sample and ``charge_pu_s`` its charge.
     """
     if not (math.isfinite(rate_hz) and rate_hz > 0):
         raise ValueError(f"controller rate must be finite and positive, got {rate_hz}")
+    store = None if math.isinf(battery_energy_pu_s) else EnergyStore([battery_energy_pu_s])
     period = 1.0 / rate_hz
     n = int(round(duration_s * rate_hz))
     t = np.arange(n + 1) * period
@@ -331,7 +342,8 @@ def simulate_sampled(
     law = spec.sampled(plant, period)
     states = np.empty((n + 1, 3))
     outputs = np.empty((n + 1, 3))
-    line = DelayLine(link, [0.0])
+    line = DelayLine(link, [0.0], store=store)
+    charge = None if store is None else np.full(n + 1, np.nan)
 
     def piece(start, stop, x, powers):
         return advance(start, stop, x, powers[0], plant, scenario, max_step_s)
@@ -347,12 +359,15 @@ def simulate_sampled(
         power, w, saturated = law.step(angle_dev, float(x[1]))
         line.send(0, k, float(t[k]), power, float(t[k]))
         states[k] = (x[0], x[1], x3)
-        outputs[k] = (line.powers[0], w, saturated)
+        outputs[k] = (line.applied_powers()[0], w, saturated)
+        if store is not None:
+            charge[k] = store.charge_pu_s[0]
         if k < n:
             x = integrate_through(line, piece, float(t[k]), float(t[k + 1]), x)
     return Trajectory(
         plant, spec.ctrl, t, states[:, 0], states[:, 1], states[:, 2],
         outputs[:, 0], outputs[:, 1], outputs[:, 2].astype(bool), np.empty(0), spec.name,
+        charge, None if store is None else store.empty_at_s[0],
     )
 
 

@@ -68,6 +68,7 @@ from nni_msgs_adapter.ros.cli_support import (
     write_json,
 )
 from nni_msgs_adapter.ros.defaults import plant_defaults
+from nni_plant_sim.battery import battery_energy
 from nni_plant_sim.link import NO_LINK
 from nni_plant_sim.model import SmibParams, restoring_power
 from nni_plant_sim.scenarios import TransferLimitFault
@@ -124,6 +125,10 @@ def build_parser() -> OneLineParser:
                         help=f"simulated seconds (default: {DEFAULT_DURATION_S:g}); --roa has its own horizon")
     parser.add_argument("--controller-rate", type=controller_rate, default=None,
                         help="'continuous' (default) or the sampled-data controller rate in Hz")
+    parser.add_argument("--battery-energy-pu-s", type=energy_option, default=None, metavar="E",
+                        help="a battery of finite energy: E pu s (of the machine's rating) to deliver and as much room "
+                             "to absorb, from half charge; empty it delivers nothing (sampled runs, --cct, "
+                             "--compare-laws; default: unlimited)")
     parser.add_argument("--json", type=writable_output, help="write the per-scenario summary as JSON here (default: none)")
     parser.add_argument("--plot", type=writable_output, help="write the paper's two figures as one PNG here (default: none)")
     parser.add_argument("--cct", action="store_true",
@@ -202,11 +207,12 @@ def plant_step_s() -> float:
     return plant_defaults()["integration_step_s"]
 
 
-def simulate(plant, law, scenario, duration_s, rate_hz, link=NO_LINK):
-    """One run of ``law`` (a :class:`.laws.Law`): the continuous nni law, or the sampled law at ``rate_hz`` (through ``link``)."""
+def simulate(plant, law, scenario, duration_s, rate_hz, link=NO_LINK, energy_pu_s=math.inf):
+    """One run of ``law`` (a :class:`.laws.Law`): the continuous nni law, or the sampled law at ``rate_hz`` (through
+    ``link``, with a battery of ``energy_pu_s``)."""
     if rate_hz is None:
         return simulate_continuous(plant, law.ctrl, scenario, duration_s, OUTPUT_STEP_S)
-    return simulate_sampled(plant, law.ctrl, scenario, duration_s, rate_hz, plant_step_s(), link, law)
+    return simulate_sampled(plant, law.ctrl, scenario, duration_s, rate_hz, plant_step_s(), link, law, energy_pu_s)
 
 
 def law_json(law) -> dict:
@@ -309,7 +315,7 @@ def run_cct(args, model, plant: SmibParams) -> int:
     print(f"{'b (pu)':>7} {'CCT (s)':>9} {'slips at (s)':>13} {'runs':>5}")
     results = []
     for law in laws:
-        result = smib_cct(plant, law, fault_p_max, args.duration, args.controller_rate, link_of(args))
+        result = smib_cct(plant, law, fault_p_max, args.duration, args.controller_rate, link_of(args), energy_of(args))
         results.append(result)
         slips = "-" if result.slips_s is None else f"{result.slips_s:.4f}"
         note = "" if result.slips_s is not None else f"  (no slip for any clearing time up to {args.duration:g} s)"
@@ -328,11 +334,11 @@ def run_cct(args, model, plant: SmibParams) -> int:
     return 0
 
 
-def smib_cct(plant, law, fault_p_max: float, duration_s: float, rate_hz, link=NO_LINK):
+def smib_cct(plant, law, fault_p_max: float, duration_s: float, rate_hz, link=NO_LINK, energy_pu_s=math.inf):
     """The critical clearing time of the transfer-limit fault for ``law`` (:func:`.margins.critical_clearing_time`)."""
     def in_sync(clearing_s):
         scenario = TransferLimitFault(fault_p_max, clearing_s)
-        return assess(simulate(plant, law, scenario, duration_s, rate_hz, link)).in_synchronism
+        return assess(simulate(plant, law, scenario, duration_s, rate_hz, link, energy_pu_s)).in_synchronism
 
     return critical_clearing_time(in_sync, law.limit_pu, duration_s)
 
@@ -341,9 +347,28 @@ def law_runners(args, model, plant: SmibParams):
     """``(simulate_run, cct_of)`` of the laws compared and tuned: ``simulate_run(law)`` the scenario's sampled run
     and the scenario, ``cct_of(law)`` its transfer-limit fault's CCT (:func:`smib_cct`), both at --duration and the
     controller rate."""
-    scenario, fault_p_max = model.scenario(), model.plant["fault_p_max_pu"]
-    return (lambda law: (simulate(plant, law, scenario, args.duration, args.controller_rate), scenario),
-            lambda law: smib_cct(plant, law, fault_p_max, args.duration, args.controller_rate))
+    scenario, fault_p_max, energy = model.scenario(), model.plant["fault_p_max_pu"], energy_of(args)
+    return (lambda law: (simulate(plant, law, scenario, args.duration, args.controller_rate, NO_LINK, energy), scenario),
+            lambda law: smib_cct(plant, law, fault_p_max, args.duration, args.controller_rate, NO_LINK, energy))
+
+
+def energy_option(text: str) -> float:
+    """argparse type of --battery-energy-pu-s: a number > 0 (``inf``: unlimited)."""
+    try:
+        return battery_energy(float(text))
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error) if "energy" in str(error) else f"expected a number, got {text!r}")
+
+
+def energy_of(args) -> float:
+    """The battery's energy, pu s (inf without --battery-energy-pu-s)."""
+    return math.inf if args.battery_energy_pu_s is None else args.battery_energy_pu_s
+
+
+def energy_line(energy_pu_s: float, empties) -> str:
+    """``battery of E pu s: b = 0.3 empty at 1.234 s, b = inf never empty``."""
+    return f"battery of {energy_pu_s:g} pu s (from half charge): " + ", ".join(
+        f"b = {b:g} " + ("never empty" if at is None else f"empty at {at:.3f} s") for b, at in empties)
 
 
 def run_compare_laws(args, model, plant: SmibParams) -> int:
@@ -359,6 +384,9 @@ def run_compare_laws(args, model, plant: SmibParams) -> int:
           f"{fault_p_max:g} pu during it), bisection to {CCT_TOLERANCE_S * 1e3:g} ms; energy: integral of |P_ST| dt")
     for name in LAW_NAMES:
         print(f"  {laws_by_b[args.b[0]][LAW_NAMES.index(name)].describe()}")
+    if args.battery_energy_pu_s is not None:
+        print(f"every law with a battery of {args.battery_energy_pu_s:g} pu s to deliver and as much room to absorb, "
+              "from half charge (empty at: when it first ran empty, '-' never)")
     rows = compare(laws_by_b, *law_runners(args, model, plant))
     print(format_rows(rows))
     print(f"energy in MWh: pu s x {MWH_PER_PU_S_100MVA:.5f} per 100 MVA of rating; saturated: the output at +-b")
@@ -366,7 +394,8 @@ def run_compare_laws(args, model, plant: SmibParams) -> int:
         write_json(args.json, {"scenario": model.scenario_values(), "controller": controller_text(rate),
                                "duration_s": args.duration, "cct_scenario": {"name": "transfer_limit_fault",
                                                                              "fault_p_max_pu": fault_p_max},
-                               "tolerance_s": CCT_TOLERANCE_S, "rows": rows})
+                               "tolerance_s": CCT_TOLERANCE_S, "battery_energy_pu_s": args.battery_energy_pu_s,
+                               "rows": rows})
         print(f"wrote {args.json}")
     if args.plot:
         save_png(comparison_figure(rows, f"Critical clearing time per battery law, SMIB, sampled at {rate:g} Hz"),
@@ -425,9 +454,12 @@ def run_time_domain(args, model, plant: SmibParams) -> int:
     scenario = model.scenario()
     ctrls = [model.controller_params(b) for b in args.b]
     check_work(plant, ctrls, args.duration, args.controller_rate)
-    trajectories = [simulate(plant, model.law(b), scenario, args.duration, args.controller_rate, link_of(args))
-                    for b in args.b]
+    trajectories = [simulate(plant, model.law(b), scenario, args.duration, args.controller_rate, link_of(args),
+                             energy_of(args)) for b in args.b]
     outcomes = [assess(traj, scenario=scenario).to_json() for traj in trajectories]
+    if args.battery_energy_pu_s is not None:
+        for outcome, traj in zip(outcomes, trajectories):
+            outcome.update(battery_energy_pu_s=args.battery_energy_pu_s, battery_empty_at_s=traj.empty_at_s)
     print(f"SMIB, {model.header()}")
     print(f"controller {controller_text(args.controller_rate)}, {args.duration:g} s "
           f"(delta_bar = {plant.delta_bar_rad:.4f} rad)")
@@ -435,6 +467,8 @@ def run_time_domain(args, model, plant: SmibParams) -> int:
         print(link_of(args).describe())
     print(format_table(outcomes))
     print(verdict_legend(outcomes))
+    if args.battery_energy_pu_s is not None:
+        print(energy_line(args.battery_energy_pu_s, [(b, traj.empty_at_s) for b, traj in zip(args.b, trajectories)]))
     if any(o["equilibrium_moved"] for o in outcomes):
         print(permanent_step_note(model, plant))
     if args.json:
@@ -546,6 +580,16 @@ def main(argv=None) -> int:
                     args.b = [0.3]
                 if len(args.b) != 1 or not 0 < args.b[0] < math.inf:
                     raise CliError("--tune-laws searches at one finite battery limit: --b takes one number > 0")
+            if args.battery_energy_pu_s is not None:
+                for flag, option, why in (("roa", "--roa", "sweeps the continuous nni law"),
+                                          ("delay_margin", "--delay-margin", "does not model it yet"),
+                                          ("tune_laws", "--tune-laws", "tunes with an unlimited battery"),
+                                          ("continuous_given", "--controller-rate continuous", "is the paper's "
+                                           "continuous law, without one")):
+                    if getattr(args, flag):
+                        raise CliError(f"--battery-energy-pu-s is a sampled run's battery: {option} {why}")
+                if args.controller_rate is None:
+                    args.controller_rate = plant_defaults()["pmu_rate_hz"]
             if args.cct:
                 if args.roa or args.plot:
                     raise CliError("--cct prints and writes --json only: it takes neither --roa nor --plot")

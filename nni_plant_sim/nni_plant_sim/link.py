@@ -132,12 +132,15 @@ class DelayLine:
     answers take effect and puts them in force there. ``on_effect(generator,
     power)``, if given, is told each time a power is put in force. Times are
     seconds on the run's clock (simulated time, or the reporting grid's in
-    realtime).
+    realtime). ``store``: the batteries' charge (:class:`nni_plant_sim.battery.EnergyStore`,
+    float powers only): the pieces are cut where one runs empty or full as well,
+    and :meth:`applied_powers` is what they give over each piece.
     """
 
-    def __init__(self, link: Link, powers, on_effect=None):
+    def __init__(self, link: Link, powers, on_effect=None, store=None):
         self.link = link
         self.powers = list(powers)
+        self.store = store
         self._on_effect = on_effect
         self._in_force_k = [-1] * len(self.powers)  # the measurement whose answer is in force
         self._pending: list[tuple[float, int, int, object]] = []  # (effect s, generator, k, power), by effect
@@ -205,12 +208,31 @@ class DelayLine:
         self._apply_due(start)
         while self._pending and self._pending[0][0] < t1_s:
             stop = self._pending[0][0]
-            yield start, stop
+            yield from self._held(start, stop)
             start = stop
             self._apply_due(start)
         if t1_s > start:
-            yield start, t1_s
+            yield from self._held(start, t1_s)
         self._apply_due(t1_s)
+
+    def applied_powers(self) -> list:
+        """The powers in force as the batteries give them (without a store: :attr:`powers`)."""
+        return self.powers if self.store is None else self.store.applied(self.powers)
+
+    def _held(self, start: float, stop: float):
+        """[start, stop] with no answer due inside, cut where a battery of the store runs empty or full."""
+        if self.store is None:
+            yield start, stop
+            return
+        while True:
+            powers = self.store.applied(self.powers)
+            left, which = self.store.time_to_bound(powers)
+            end, bound = (start + left, which) if start + left <= stop else (stop, None)
+            yield start, end
+            self.store.hold(powers, start, end, bound)
+            if end >= stop:
+                return
+            start = end
 
     def _apply_due(self, t_s: float) -> None:
         while self._pending and self._pending[0][0] <= t_s:
@@ -226,5 +248,5 @@ def integrate_through(line: DelayLine, integrate, t0_s: float, t1_s: float, stat
     the offline simulations integrate through this one function.
     """
     for start, stop in line.pieces(t0_s, t1_s):
-        state = integrate(start, stop, state, line.powers)
+        state = integrate(start, stop, state, line.applied_powers())
     return state
