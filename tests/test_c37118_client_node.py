@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import json
+import math
 import socket
 import subprocess
 import sys
@@ -106,9 +107,10 @@ def test_bad_input_is_counted_on_diagnostics_and_the_node_survives(tmp_path):
     probe = Probe(domain, ["c37118/pmu", contract.TOPIC_DIAGNOSTICS], namespace="/gen1")
     try:
         with node_processes(tmp_path, domain) as start:
+            # The scripted frames' angles are not their frequencies' (the plausibility bound at its widest).
             node = start("client", CLIENT, {"pmu_port": pmu.port, "pmu_idcode": CONFIG.idcode, "angle_phasor":
                                             "EMF E'", "power_analog": "", "namespaces": ["/gen1"],
-                                            "wait_for_subscribers": 1})
+                                            "wait_for_subscribers": 1, "plausible_step_rad": math.pi})
             statuses = lambda: [s for s in map(client_status, probe.take(contract.TOPIC_DIAGNOSTICS)) if s]  # noqa: E731
             assert wait_until(lambda: len(probe.take("c37118/pmu")) >= 7, 30), node.output()
             # Connected, rejections grown since the last status: WARN.

@@ -21,6 +21,7 @@ loop closed.
 from __future__ import annotations
 
 import functools
+import math
 import sys
 import time
 
@@ -56,6 +57,9 @@ def parameters() -> tuple[Spec, ...]:
              "name; empty: each station's first)."),
         Spec("power_analog", values["power_analog"], "The analog that is the electrical power P_E, pu (by its "
              "CFG-2 name; empty: none, the effort is NaN)."),
+        Spec("plausible_step_rad", values["plausible_step_rad"], "A sample whose angle step since its station's "
+             "last one differs from what its frequency explains by more than this is rejected (implausible), rad.",
+             1e-4, math.pi),
         Spec("max_age_s", values["max_age_s"], "realtime: a frame older than this on arrival (from its SOC/FRACSEC) "
              "is rejected as stale, s (match the controllers' stamp_tolerance_s).", 1e-3, 1e6),
         Spec("wait_for_subscribers", values["wait_for_subscribers"], "Connect only once every station's topic has "
@@ -76,7 +80,8 @@ class C37118ClientNode(LoopNode):
         if len(set(namespaces)) != len(namespaces):
             raise ValueError(f"namespaces must be distinct, got {namespaces}")
         lockstep = values["mode"] == "lockstep"
-        self._feeds = StationFeeds(len(namespaces), lockstep, values["angle_phasor"], values["power_analog"])
+        self._feeds = StationFeeds(len(namespaces), lockstep, values["angle_phasor"], values["power_analog"],
+                                   values["plausible_step_rad"])
         # With the run's key each republished measurement is sealed as the plant seals its pmu (the stream itself
         # has no authentication: IEEE C37.118.2 defines none), so that a controller reading c37118/pmu acts on
         # this node's samples alone.

@@ -19,10 +19,24 @@ carries (:data:`nni_msgs_adapter.ros.contract.TOPIC_C37118_PMU`):
 The stream's rejections are the client core's (:class:`~.client.PdcSession`:
 ``bad_crc``, ``bad_sync``, ``wrong_idcode``, ``bad_framesize``, ``oversized``,
 ``truncated``, ``invalid_data``, ``time_backwards``, ``duplicate``, ``stale``,
-...); the feeds add two of their own: ``missing_channel`` (a station without
-the named phasor or analog) and ``unmapped_station`` (a station beyond the
-namespaces given). :meth:`StationFeeds.status` raises WARN on /diagnostics
-while any grows, ERROR while not connected.
+...); the feeds add three of their own: ``missing_channel`` (a station without
+the named phasor or analog), ``unmapped_station`` (a station beyond the
+namespaces given) and ``implausible``: a sample whose angle step since the
+station's last accepted one is not what its own frequency says, beyond
+``plausible_step_rad``. IEEE C37.118.2 has no authentication, so this is the
+stream's check of consistency: the angle advances at the speed deviation, so from
+(t0, angle0, speed0) to (t1, angle1, speed1) the step is the trapezoid
+(speed0 + speed1) (t1 - t0) / 2 to within (t1 - t0)^2 times the jump of the
+acceleration (well under a milliradian at 50 frames/s for these machines),
+and a bound of 0.1 rad (5.7 degrees) leaves room for a PMU's noise up to about
+20 mrad (the bound over 5 standard deviations of the step). It catches an
+angle that a man in the middle or a compromised PMU moves by more than the
+bound without moving the frequency with it; it does not catch one that moves
+both consistently, nor a small bias. An implausible sample is not fed to the
+controller and not taken as the next reference; the first sample of a
+connection is taken as it is. :meth:`StationFeeds.status` raises ERROR on
+/diagnostics while ``implausible`` grows or while not connected, WARN while
+another rejection grows.
 
 Pure python: no ROS import.
 """
@@ -37,7 +51,9 @@ from .counting import add
 from .frames import Config
 
 #: The feeds' own rejection reasons, beside the client core's.
-FEED_REJECTIONS = ("missing_channel", "unmapped_station")
+FEED_REJECTIONS = ("missing_channel", "unmapped_station", "implausible")
+#: Default bound on a sample's angle step beyond what its frequency explains, rad.
+PLAUSIBLE_STEP_RAD = 0.1
 #: The power channel of a feed told to read none: its effort is NaN.
 _NO_ANALOG = -1
 
@@ -67,14 +83,14 @@ class StationFeeds:
     """The stations of one stream, station k feeding generator k of ``count`` namespaces (data frame order)."""
 
     def __init__(self, count: int, lockstep: bool, angle_phasor: str = profile.EMF_PHASOR,
-                 power_analog: str = profile.POWER_ANALOG):
-        self.count, self.lockstep = count, lockstep
+                 power_analog: str = profile.POWER_ANALOG, plausible_step_rad: float = PLAUSIBLE_STEP_RAD):
+        self.count, self.lockstep, self.plausible_step_rad = count, lockstep, plausible_step_rad
         self.angle_phasor, self.power_analog = angle_phasor, power_analog
         self.rejected: dict[str, int] = {}
         self.published = 0
         self._config: Config | None = None
         self._channels: list[tuple[int, int | None] | None] = []
-        self._angles: list[float | None] = [None] * count
+        self._last: list[tuple[int, float, float] | None] = [None] * count  # (instant ns, angle, speed) accepted
         self._connection = None
         self._reported: dict[str, int] = {}
 
@@ -92,7 +108,7 @@ class StationFeeds:
         if config is not self._config:
             self._configure(config)
         if connection != self._connection:
-            self._connection, self._angles = connection, [None] * self.count
+            self._connection, self._last = connection, [None] * self.count
         taken = []
         for sample in samples:
             if sample.station >= self.count:
@@ -104,14 +120,23 @@ class StationFeeds:
                 continue
             angle_index, power_index = channels
             reading = sample.reading
-            angle = unwrapped(self._angles[sample.station], reading.angles_rad[angle_index])
-            self._angles[sample.station] = angle
-            nominal_hz = config.stations[sample.station].nominal_hz
+            last = self._last[sample.station]
+            angle = unwrapped(None if last is None else last[1], reading.angles_rad[angle_index])
+            speed = 2.0 * math.pi * (reading.frequency_hz - config.stations[sample.station].nominal_hz)
+            if last is not None and not self.plausible(last, sample.instant_ns, angle, speed):
+                add(self.rejected, "implausible")
+                continue
+            self._last[sample.station] = (sample.instant_ns, angle, speed)
             taken.append(Measurement(sample.station, profile.stamp_from_instant(sample.instant_ns, self.lockstep),
-                                     angle, 2.0 * math.pi * (reading.frequency_hz - nominal_hz),
+                                     angle, speed,
                                      math.nan if power_index == _NO_ANALOG else reading.analogs[power_index]))
         self.published += len(taken)
         return taken
+
+    def plausible(self, last: tuple[int, float, float], instant_ns: int, angle_rad: float, speed_rad_s: float) -> bool:
+        """Whether the step from ``last`` (instant ns, angle, speed) to this sample is what the speeds explain."""
+        expected = last[1] + 0.5 * (last[2] + speed_rad_s) * (instant_ns - last[0]) * 1e-9
+        return abs(angle_rad - expected) <= self.plausible_step_rad
 
     def status(self, client: dict) -> tuple[str, str, dict]:
         """``(level, message, values)`` for /diagnostics from the client's counters (:meth:`.client.PdcClient.counters`):
@@ -128,6 +153,9 @@ class StationFeeds:
         self._reported = rejected
         if not client["connected"]:
             return "ERROR", "not connected to the PMU", values
+        if "implausible" in grew:
+            return "ERROR", (f"rejected: {', '.join(grew)} (an angle step its frequency does not explain, beyond "
+                             f"{self.plausible_step_rad:g} rad)"), values
         if grew:
             return "WARN", f"rejected: {', '.join(grew)}", values
         return "OK", "receiving", values
