@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from nni_battery_controller.controller_config import generator_parameters
+from nni_battery_controller.demo_common import loop_writers, wait_for_recorder
 from nni_battery_controller.network_sim import NetworkLaw, NetworkTrajectory, assess_network, simulate_network
 from nni_msgs_adapter.ros import contract
 from nni_plant_sim.cases import load_network
@@ -261,7 +262,13 @@ def test_the_mcap_logger_records_every_generator_of_the_network_run(tmp_path, ku
         for i in range(kundur.size):
             start(f"controller_gen{i + 1}", CONTROLLER, controller_parameters(kundur, i, b), ("-r", f"__ns:=/gen{i + 1}"))
         plant = start("plant", PLANT, {**FAULT, "duration_s": DURATION_S, "pmu_rate_hz": RATE_HZ,
-                                       "wait_for_subscribers": 2})
+                                       "wait_for_subscribers": 2, "hold_until_released": True})
+        # Released once the logger has matched every loop writer, as nni-demo does: the plant's count of two
+        # readers on each pmu cannot tell whether the logger's plant/state readers have matched too (a loaded
+        # suite once recorded the states from 2.26 s on).
+        wait_for_recorder(logger, loop_writers([f"gen{i + 1}" for i in range(kundur.size)],
+                                               lambda ns: f"/{ns}/controller", "/network_plant"), tmp_path)
+        plant.proc.send_signal(signal.SIGUSR1)
         assert plant.wait(timeout=120.0) == 0, plant.output()
         time.sleep(0.5)  # the last reliable messages land
         logger.proc.send_signal(signal.SIGINT)
