@@ -50,8 +50,6 @@ def test_a_run_that_reaches_its_duration_ends_at_info_with_no_zero_command(tmp_p
         finally:
             probe.close()
     output = controller.output()
-    assert not log_lines(output, "WARN") and not log_lines(output, "ERROR"), output
-    assert len([line for line in log_lines(output, "INFO") if END_INFO in line]) == 1, output
     measurements = [contract.ns_from_time(m.header.stamp) for m in probe.take(contract.TOPIC_PMU)]
     commands = stamps_and_powers(probe.take(contract.TOPIC_BATTERY_COMMAND))
     if mode == "lockstep":
@@ -60,7 +58,17 @@ def test_a_run_that_reaches_its_duration_ends_at_info_with_no_zero_command(tmp_p
         steps = {later - earlier for earlier, later in zip(measurements, measurements[1:])}
         assert 90 <= len(measurements) <= 100 and all(step > 0 and step % 20_000_000 == 0 for step in steps), \
             "2 s at 50/s, on the period's grid"
-    assert [stamp for stamp, _ in commands] == measurements, "one answer per measurement, no stand-down after"
+    # Realtime, a loaded machine can silence the loop mid-run for the watchdog's 5 periods (the plant skipping
+    # instants, or the controller taking a measurement late: 11 in 40 runs beside a loaded worker); a stand-down
+    # there, before the last measurement, is the watchdog's right answer. The end is the test: none after it.
+    answered = set(measurements)
+    stand_downs = [(stamp, power) for stamp, power in commands if stamp not in answered]
+    assert not log_lines(output, "ERROR") and len(log_lines(output, "WARN")) == len(stand_downs), output
+    assert all(mode == "realtime" and power == 0.0 and stamp < measurements[-1] for stamp, power in stand_downs), \
+        output
+    assert len([line for line in log_lines(output, "INFO") if END_INFO in line]) == 1, output
+    assert [stamp for stamp, _ in commands if stamp in answered] == measurements, \
+        "one answer per measurement, no stand-down after"
 
 
 def test_a_plant_stopped_mid_run_is_a_normal_end_too(tmp_path, busy):

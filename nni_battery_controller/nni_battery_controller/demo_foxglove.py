@@ -37,7 +37,7 @@ def add_foxglove_option(parser) -> None:
                              f"(alone: {DEFAULT_ADDRESS}; loopback unless a host is named); default: off")
     parser.add_argument("--foxglove-wait", action="store_true",
                         help="with --foxglove: start each run only once a Foxglove client has subscribed to it (a "
-                             "lockstep run is otherwise over before a reconnecting client can subscribe)")
+                             "lockstep run is otherwise over before a reconnecting client can subscribe; default: off)")
 
 
 def foxglove_address(args) -> str | None:

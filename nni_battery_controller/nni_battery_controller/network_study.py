@@ -93,7 +93,7 @@ def build_parser() -> OneLineParser:
     parser.add_argument("--compare-laws", action="store_true",
                         help=f"every battery law ({', '.join(LAW_NAMES)}) per b and reference, instead of runs: the "
                              "bus fault's verdict, settling time, battery energy (MWh), time saturated and CCT "
-                             "(as --cct); a table, --json, --plot the CCT against b")
+                             "(as --cct); a table, --json, --plot the CCT against b (default: off)")
     parser.add_argument("--delay-margin", action="store_true",
                         help="the largest fixed measurement-to-command delay (the link's) that keeps the network in "
                              "synchronism per b and reference, instead of runs: scan by --delay-step up to "
