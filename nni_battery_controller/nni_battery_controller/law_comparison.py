@@ -24,7 +24,7 @@ import numpy as np
 
 from nni_battery_controller.laws import LAW_NAMES
 from nni_battery_controller.network_sim import network_verdict
-from nni_battery_controller.verdicts import assess, verdict_text
+from nni_battery_controller.verdicts import assess, number_or_dash, verdict_text
 
 #: MWh per pu s on a 100 MVA rating: 100 MW for one second is 100/3600 MWh.
 MWH_PER_PU_S_100MVA = 100.0 / 3600.0
@@ -98,9 +98,6 @@ def compare_network(limits, laws, simulate_runs, ccts_of) -> list[dict]:
 
 def format_network_rows(rows) -> str:
     """The network comparison as a fixed-width table, grouped by reference and b."""
-    def num(value, fmt):
-        return "-" if value is None else fmt.format(value)
-
     header = (f"{'b (pu)':>7} {'reference':>9} {'law':>16} {'CCT (s)':>8} {'settle (s)':>10} {'energy (MWh)':>12} "
               f"{'saturated (s)':>13}  verdict")
     lines = [header, "-" * (len(header) + 24)]
@@ -109,16 +106,13 @@ def format_network_rows(rows) -> str:
         cct = "none" if row["cct_s"] is None else (f">={row['cct_s']:.3f}" if row["at_search_limit"]
                                                    else f"{row['cct_s']:.3f}")
         lines.append(f"{b:>7g} {row['reference']:>9} {row['law']:>16} {cct:>8} "
-                     f"{num(row['settling_time_s'], '{:.3f}'):>10} {row['energy_mwh']:>12.3f} "
-                     f"{num(row['time_saturated_s'], '{:.3f}'):>13}  {row['verdict']}")
+                     f"{number_or_dash(row['settling_time_s'], '{:.3f}'):>10} {row['energy_mwh']:>12.3f} "
+                     f"{number_or_dash(row['time_saturated_s'], '{:.3f}'):>13}  {row['verdict']}")
     return "\n".join(lines)
 
 
 def format_rows(rows) -> str:
     """The comparison as a fixed-width table, grouped by b."""
-    def num(value, fmt):
-        return "-" if value is None else fmt.format(value)
-
     empties = bool(rows) and "battery_empty_at_s" in rows[0]
     header = (f"{'b (pu)':>7} {'law':>16} {'CCT (s)':>8} {'settle (s)':>10} {'energy (pu s)':>13} "
               f"{'saturated (s)':>13}" + (f" {'empty at (s)':>12}" if empties else "") + "  verdict")
@@ -126,9 +120,9 @@ def format_rows(rows) -> str:
     for row in rows:
         b = math.inf if row["b"] == "inf" else row["b"]
         cct = f"{row['cct_s']:.3f}" if row["cct_slips_s"] is not None else f">={row['cct_s']:.3f}"
-        empty = f" {num(row['battery_empty_at_s'], '{:.3f}'):>12}" if empties else ""
-        lines.append(f"{b:>7g} {row['law']:>16} {cct:>8} {num(row['settling_time_s'], '{:.3f}'):>10} "
-                     f"{row['energy_pu_s']:>13.4f} {num(row['time_saturated_s'], '{:.3f}'):>13}{empty}  {row['verdict']}")
+        empty = f" {number_or_dash(row['battery_empty_at_s'], '{:.3f}'):>12}" if empties else ""
+        lines.append(f"{b:>7g} {row['law']:>16} {cct:>8} {number_or_dash(row['settling_time_s'], '{:.3f}'):>10} "
+                     f"{row['energy_pu_s']:>13.4f} {number_or_dash(row['time_saturated_s'], '{:.3f}'):>13}{empty}  {row['verdict']}")
     return "\n".join(lines)
 
 

@@ -14,6 +14,7 @@ import numpy as np
 
 from nni_msgs_adapter.ros.cli_support import CliError, finite_float, float_within, positive_float
 from nni_battery_controller.network_sim import network_verdict
+from nni_battery_controller.verdicts import number_or_dash
 from nni_plant_sim.cases import DEFAULT_FAULT_BUS
 from nni_plant_sim.network_scenarios import (
     NETWORK_SCENARIOS,
@@ -108,10 +109,6 @@ def make_scenario(net, args):
         f"angles of {', '.join(net.names[i] for i in machines)} displaced by {args.displace:g} rad", None
 
 
-def _num(value, fmt="{:.3f}"):
-    return "-" if value is None else fmt.format(value)
-
-
 def json_b(b):
     """A battery limit as JSON writes it: ``"inf"`` for the unlimited battery."""
     return "inf" if math.isinf(b) else b
@@ -132,6 +129,6 @@ def format_run(outcome, b, reference, net) -> str:
     rows = [head, header, "  " + "-" * (len(header) - 2)]
     for g in outcome.generators:
         rows.append(f"  {g.name:<9} {('yes' if g.in_synchronism else 'NO'):>7} {('yes' if g.settled else 'no'):>7} "
-                    f"{_num(g.settling_time_s):>10} {g.max_abs_battery_power_pu:>14.4f} "
-                    f"{g.max_abs_battery_power_mw:>14.1f} {_num(g.last_saturated_s):>12}")
+                    f"{number_or_dash(g.settling_time_s):>10} {g.max_abs_battery_power_pu:>14.4f} "
+                    f"{g.max_abs_battery_power_mw:>14.1f} {number_or_dash(g.last_saturated_s):>12}")
     return "\n".join(rows)

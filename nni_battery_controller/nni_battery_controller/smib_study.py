@@ -56,7 +56,7 @@ from nni_battery_controller.study_common import (
     refuse_beside_delay_margin,
     resolve_delay_span,
 )
-from nni_battery_controller.verdicts import SETTLE_BAND_RAD, assess, verdict_text
+from nni_battery_controller.verdicts import SETTLE_BAND_RAD, assess, number_or_dash, verdict_text
 from nni_msgs_adapter.ros.cli_support import (
     CliError,
     OneLineParser,
@@ -223,9 +223,6 @@ def law_json(law) -> dict:
 def format_table(outcomes) -> str:
     """A fixed-width table of outcomes (``Outcome.to_json`` dicts), one row per battery limit."""
 
-    def num(value, fmt="{:.3f}"):
-        return "-" if value is None else fmt.format(value)
-
     header = (f"{'b (pu)':>7} {'in sync':>7} {'settled':>7} {'max|d| (rad)':>13} {'max|P_ST| (pu)':>15} "
               f"{'last sat (s)':>13} {'settle (s)':>10}  verdict")
     rows = [header, "-" * (len(header) + 40)]
@@ -235,7 +232,7 @@ def format_table(outcomes) -> str:
         rows.append(
             f"{b:>7g} {('yes' if o['in_synchronism'] else 'NO'):>7} {settled:>7} "
             f"{o['max_abs_angle_dev_rad']:>13.4f} {o['max_abs_battery_power_pu']:>15.4f} "
-            f"{num(o['last_saturated_s']):>13} {num(o['settling_time_s']):>10}  {verdict_text(o)}"
+            f"{number_or_dash(o['last_saturated_s']):>13} {number_or_dash(o['settling_time_s']):>10}  {verdict_text(o)}"
         )
     return "\n".join(rows)
 

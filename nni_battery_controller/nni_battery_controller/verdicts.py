@@ -172,3 +172,8 @@ def verdict_text(outcome: dict) -> str:
     if outcome["settling_time_s"] is not None:
         return f"in sync, NOT SETTLED (in band only since {outcome['settling_time_s']:.2f} s)"
     return f"in sync, NOT SETTLED (|d| {abs(outcome['final_angle_dev_rad']):.3f} rad at the end)"
+
+
+def number_or_dash(value, fmt: str = "{:.3f}") -> str:
+    """``value`` formatted with ``fmt``, or ``-`` where there is none (a table's empty cell)."""
+    return "-" if value is None else fmt.format(value)
