@@ -242,15 +242,20 @@ def test_attack_4_one_far_future_measurement_does_not_lock_the_controller_out(tm
             controller = [contract.diagnostic_values(m, "controller") for m in probe.take(contract.TOPIC_DIAGNOSTICS)]
         finally:
             probe.close()
-    after = applied_powers(probe)[hit_at + 5:]
-    assert len(after) > 50 and sum(1 for p in after if p != 0.0) > 0.9 * len(after), \
-        "the battery kept acting after the rogue measurement"
     # The controller dropped the rogue sample alone (not sealed by the plant: it never reached the input gate) and
-    # took every later one in order. (The plant's command_timeouts is not asserted: on a loaded machine one honest
-    # answer took longer than 0.1 s.)
+    # took every later one in order: a lock-out would leave its accepted samples where the attack found them.
     counts = [c for c in controller if c is not None][-1]
     assert int(counts["unauthenticated_measurements"]) == 1
     assert int(counts["implausible_stamp"]) == 0 and int(counts["out_of_order"]) == 0
+    taken = sum(int(counts[key]) for key in ("samples", "resets", "reanchors"))
+    assert taken >= hit_at + 90, "the controller kept taking its plant's measurements"
+    # And the battery kept acting. Not every sample: realtime on a loaded machine, an honest answer that comes
+    # later than the plant's command_timeout_s (0.1 s) is applied as zero (11 of 98 once in CI); a lock-out is
+    # zero from the attack on.
+    after = applied_powers(probe)[hit_at + 5:]
+    assert len(after) > 50 and sum(1 for p in after if p != 0.0) > 0.5 * len(after), \
+        "the battery kept acting after the rogue measurement"
+    assert any(p != 0.0 for p in after[-20:])
 
 
 def lone_rogue_run(tmp_path, powers_pu, mode: str = "lockstep", rating_pu: float = 1.0):
