@@ -70,8 +70,10 @@ def test_compare_laws_says_which_laws_run_the_battery_empty(tmp_path):
     assert done.returncode == 0, done.stderr
     assert "every law with a battery of 0.1 pu s to deliver and as much room to absorb" in done.stdout
     assert "empty at (s)" in done.stdout
+    assert "ROA: not swept ('-'): the sweep models an unlimited battery" in done.stdout
     data = json.loads(out.read_text())
     assert data["battery_energy_pu_s"] == 0.1
+    assert data["roa"] is None and all(row["roa_synchronism_area_rad2_per_s"] is None for row in data["rows"])
     empties = {row["law"]: row["battery_empty_at_s"] for row in data["rows"]}
     assert empties["nni"] is None and empties["droop"] is not None  # the NNI law absorbs first, droop delivers
     assert all(row["energy_pu_s"] <= 0.2 + 2 * 0.1 * 6 for row in data["rows"])

@@ -160,8 +160,16 @@ def test_compare_laws_prints_every_law_per_b_and_writes_json_and_figure(tmp_path
     assert len({row["cct_s"] for row in no_battery}) == 1 and all(row["energy_pu_s"] == 0 for row in no_battery)
     assert all(row["time_saturated_s"] is None for row in no_battery)
     assert set(data["rows"][0]) >= {"verdict", "settling_time_s", "energy_pu_s", "energy_mwh_per_100mva",
-                                    "time_saturated_s", "cct_s", "cct_slips_s", "gains"}
-    assert png_title(out_png) == "Critical clearing time per battery law, SMIB, sampled at 50 Hz"
+                                    "time_saturated_s", "cct_s", "cct_slips_s", "gains", "roa_synchronism_area_rad2_per_s",
+                                    "roa_returns_area_rad2_per_s"}
+    # The region of attraction per law: the same grid for every law; with no battery every law is the plant alone.
+    assert (data["roa"]["n_angle"], data["roa"]["n_speed"], data["roa"]["horizon_s"]) == (41, 41, 4.0)
+    assert len({(row["roa_synchronism_area_rad2_per_s"], row["roa_returns_area_rad2_per_s"])
+                for row in no_battery}) == 1
+    assert all(row["roa_synchronism_area_rad2_per_s"] > no_battery[0]["roa_synchronism_area_rad2_per_s"]
+               for row in data["rows"] if row["b"] == 0.3)
+    assert "ROA sync ROA back" in done.stdout
+    assert png_title(out_png) == "Critical clearing time and region of attraction per battery law, SMIB, sampled at 50 Hz"
 
 
 def test_compare_laws_refuses_what_does_not_apply():
@@ -303,3 +311,45 @@ def test_tune_laws_refuses_what_does_not_apply(argv, message, tmp_path):
                           capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert done.returncode == 2 and message in done.stderr and len(done.stderr.splitlines()) == 1, done.stderr
     assert not (tmp_path / "x.png").exists()
+
+
+def test_the_sampled_region_of_attraction_is_the_continuous_sweeps_for_nni_and_the_plants_alone_without_battery():
+    """The comparison's sweep (every law sampled at 50 Hz, the SMIB as the one-generator network) beside the
+    continuous H3-hat sweep of :mod:`roa` (another integrator, with located switches): the cells where a pole
+    slip happens agree but for a few cells on the continuous basin's boundary. With b = 0 no law acts: every law's
+    basin is the plant's alone, cell for cell."""
+    from nni_battery_controller.law import ControllerParams as Params
+    from nni_battery_controller.law_roa import COMPARISON_GRID, sampled_basin
+    from nni_battery_controller.laws import Law
+    from nni_battery_controller.roa import RETURNS, SLIPS, boundary_cells, sweep
+    from nni_plant_sim.model import SmibParams
+
+    plant, grid = SmibParams(), COMPARISON_GRID
+    alone = [sampled_basin(plant, Law(name, Params(battery_limit_pu=0.0)), grid, 10.0, 50.0).outcome
+             for name in LAW_NAMES]
+    assert all(np.array_equal(outcome, alone[0]) for outcome in alone)
+    for b in (0.0, 0.3):
+        ctrl = Params(battery_limit_pu=b)
+        sampled = sampled_basin(plant, Law("nni", ctrl), grid, 10.0, 50.0).outcome
+        (continuous,) = sweep(plant, [ctrl], grid)
+        differ = (sampled == SLIPS) != (continuous.outcome == SLIPS)
+        assert differ.sum() <= 0.01 * grid.n_angle * grid.n_speed, (b, differ.sum())
+        assert not np.any(differ & ~boundary_cells(continuous.outcome)), b
+    # At the equilibrium (the grid's centre cell) every law returns at b = 0.3; the battery widens every basin.
+    centre = (grid.n_speed // 2, grid.n_angle // 2)
+    for name in LAW_NAMES:
+        outcome = sampled_basin(plant, Law(name, Params(battery_limit_pu=0.3)), grid, 10.0, 50.0).outcome
+        assert outcome[centre] == RETURNS, name
+        assert np.count_nonzero(outcome == SLIPS) < np.count_nonzero(alone[0] == SLIPS), name
+
+
+def test_a_run_whose_angles_run_away_after_the_loss_says_diverged_not_a_number_of_degrees():
+    """The same unstable droop run, once: after its pole slip the angles grow without bound (the spread once
+    printed as 1e57 degrees). The verdict stands; the numbers that mean nothing any more are not printed."""
+    done = subprocess.run([sys.executable, "-m", "nni_battery_controller.simulate_command", "--case", "ieee39",
+                           "--b", "inf", "--law", "droop", "--duration", "2"], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    verdict = done.stdout.splitlines()[1]
+    assert verdict == ("b = inf (unsaturated), reference pmu: LOST SYNCHRONISM at 0.68 s, not settled (the angles "
+                       "diverged after the loss: spread beyond 1e+06 deg)"), verdict

@@ -28,6 +28,8 @@ from nni_battery_controller.verdicts import assess, number_or_dash, verdict_text
 
 #: MWh per pu s on a 100 MVA rating: 100 MW for one second is 100/3600 MWh.
 MWH_PER_PU_S_100MVA = 100.0 / 3600.0
+#: A SMIB row's region-of-attraction areas, rad * rad/s (:func:`.law_roa.basin_summary`).
+ROA_KEYS = ("roa_synchronism_area_rad2_per_s", "roa_returns_area_rad2_per_s")
 
 
 def run_summary(traj, scenario) -> dict:
@@ -44,18 +46,21 @@ def run_summary(traj, scenario) -> dict:
             **({} if traj.charge_pu_s is None else {"battery_empty_at_s": traj.empty_at_s})}
 
 
-def compare(laws_by_b, simulate_run, cct_of) -> list[dict]:
-    """Rows ``{law, b, run..., cct_s, cct_slips_s}`` for ``laws_by_b`` ({b: [Law, ...]}).
+def compare(laws_by_b, simulate_run, cct_of, roa_of=None) -> list[dict]:
+    """Rows ``{law, b, run..., cct_s, cct_slips_s, roa_...}`` for ``laws_by_b`` ({b: [Law, ...]}).
 
-    ``simulate_run(law)`` runs the scenario, ``cct_of(law)`` returns a :class:`.margins.ClearingTime`.
+    ``simulate_run(law)`` runs the scenario, ``cct_of(law)`` returns a :class:`.margins.ClearingTime`,
+    ``roa_of(law)`` the region-of-attraction areas (:func:`.law_roa.basin_summary`; None: not swept, the
+    areas None).
     """
     rows = []
     for b, laws in laws_by_b.items():
         for law in laws:
             traj, scenario = simulate_run(law)
             cct = cct_of(law)
+            roa = dict.fromkeys(ROA_KEYS) if roa_of is None else roa_of(law)
             rows.append({"law": law.name, "b": "inf" if math.isinf(b) else b, **run_summary(traj, scenario),
-                         "cct_s": cct.cct_s, "cct_slips_s": cct.slips_s, "gains": law.gain_values()})
+                         "cct_s": cct.cct_s, "cct_slips_s": cct.slips_s, **roa, "gains": law.gain_values()})
     return rows
 
 
@@ -114,20 +119,24 @@ def format_network_rows(rows) -> str:
 def format_rows(rows) -> str:
     """The comparison as a fixed-width table, grouped by b."""
     empties = bool(rows) and "battery_empty_at_s" in rows[0]
-    header = (f"{'b (pu)':>7} {'law':>16} {'CCT (s)':>8} {'settle (s)':>10} {'energy (pu s)':>13} "
-              f"{'saturated (s)':>13}" + (f" {'empty at (s)':>12}" if empties else "") + "  verdict")
+    header = (f"{'b (pu)':>7} {'law':>16} {'CCT (s)':>8} {'ROA sync':>8} {'ROA back':>8} {'settle (s)':>10} "
+              f"{'energy (pu s)':>13} {'saturated (s)':>13}" + (f" {'empty at (s)':>12}" if empties else "")
+              + "  verdict")
     lines = [header, "-" * (len(header) + 24)]
     for row in rows:
         b = math.inf if row["b"] == "inf" else row["b"]
         cct = f"{row['cct_s']:.3f}" if row["cct_slips_s"] is not None else f">={row['cct_s']:.3f}"
         empty = f" {number_or_dash(row['battery_empty_at_s'], '{:.3f}'):>12}" if empties else ""
-        lines.append(f"{b:>7g} {row['law']:>16} {cct:>8} {number_or_dash(row['settling_time_s'], '{:.3f}'):>10} "
+        areas = " ".join(f"{number_or_dash(row[key], '{:.2f}'):>8}" for key in ROA_KEYS)
+        lines.append(f"{b:>7g} {row['law']:>16} {cct:>8} {areas} {number_or_dash(row['settling_time_s'], '{:.3f}'):>10} "
                      f"{row['energy_pu_s']:>13.4f} {number_or_dash(row['time_saturated_s'], '{:.3f}'):>13}{empty}  {row['verdict']}")
     return "\n".join(lines)
 
 
 def comparison_figure(rows, title: str):
-    """CCT against b, one line per law and (a network's rows) angle reference (b = inf drawn at the right edge)."""
+    """CCT against b, one line per law and (a network's rows) angle reference (b = inf drawn at the right edge);
+    beside it, where the rows have them, the region-of-attraction areas against b per law (in synchronism solid,
+    returned dashed)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -136,20 +145,35 @@ def comparison_figure(rows, title: str):
     finite = sorted({row["b"] for row in rows if row["b"] != "inf"})
     edge = (max(finite) * 1.25 if finite and max(finite) > 0 else 1.0)
     references = list(dict.fromkeys(row.get("reference") for row in rows))
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    swept = any(row.get(ROA_KEYS[0]) is not None for row in rows)
+    fig, axes = plt.subplots(1, 2 if swept else 1, figsize=(12, 4.5) if swept else (7, 4.5), squeeze=False)
+    ax = axes[0][0]
+
+    def b_axis(row) -> float:
+        return edge if row["b"] == "inf" else row["b"]
+
     for reference in references:
         for name in LAW_NAMES:
             mine = [row for row in rows if row["law"] == name and row.get("reference") == reference]
             if not mine:
                 continue
-            xs = [edge if row["b"] == "inf" else row["b"] for row in mine]
-            ax.plot(xs, [math.nan if row["cct_s"] is None else row["cct_s"] for row in mine], marker="o",
-                    linestyle="-" if reference == references[0] else "--", color=f"C{LAW_NAMES.index(name)}",
-                    label=name if len(references) == 1 else f"{name}, {reference}")
-    ax.set_xlabel("battery limit b (pu; the rightmost point: unlimited)")
+            ax.plot([b_axis(row) for row in mine], [math.nan if row["cct_s"] is None else row["cct_s"] for row in mine],
+                    marker="o", linestyle="-" if reference == references[0] else "--",
+                    color=f"C{LAW_NAMES.index(name)}", label=name if len(references) == 1 else f"{name}, {reference}")
     ax.set_ylabel("critical clearing time (s)" + (", at least where at the search limit"
                                                   if any(row.get("at_search_limit") for row in rows) else ""))
-    ax.grid(True, alpha=0.3)
+    if swept:
+        roa = axes[0][1]
+        for name in LAW_NAMES:
+            mine = [row for row in rows if row["law"] == name]
+            for key, style, what in ((ROA_KEYS[0], "-", "in sync"), (ROA_KEYS[1], "--", "returned")):
+                roa.plot([b_axis(row) for row in mine], [row[key] for row in mine], marker="o", linestyle=style,
+                         color=f"C{LAW_NAMES.index(name)}", label=f"{name}, {what}")
+        roa.set_ylabel("region of attraction (rad x rad/s)")
+        roa.legend(fontsize="small", ncol=2)
+    for axis in axes[0]:
+        axis.set_xlabel("battery limit b (pu; the rightmost point: unlimited)")
+        axis.grid(True, alpha=0.3)
     ax.legend()
     fig.suptitle(title)
     fig.tight_layout()

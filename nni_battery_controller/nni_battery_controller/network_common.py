@@ -119,11 +119,19 @@ def limit_words(b) -> str:
     return "b = inf (unsaturated)" if math.isinf(b) else ("b = 0 (no battery)" if b == 0 else f"b = {b:g} pu")
 
 
+#: An angle spread beyond this (degrees) is no machine's: a lost run's integration ran away after the pole slip.
+DIVERGED_SPREAD_DEG = 1e6
+
+
 def format_run(outcome, b, reference, net) -> str:
     """One run's table: the system verdict line, then one row per generator."""
-    head = f"{limit_words(b)}, reference {reference}: {network_verdict(outcome)} (max angle spread " \
-           f"{math.degrees(outcome.max_angle_spread_rad):.1f} deg, final COI frequency deviation " \
-           f"{outcome.final_coi_frequency_hz:+.3f} Hz)"
+    spread_deg = math.degrees(outcome.max_angle_spread_rad)
+    if math.isfinite(spread_deg) and spread_deg < DIVERGED_SPREAD_DEG:
+        numbers = f"max angle spread {spread_deg:.1f} deg, final COI frequency deviation " \
+                  f"{outcome.final_coi_frequency_hz:+.3f} Hz"
+    else:
+        numbers = f"the angles diverged after the loss: spread beyond {DIVERGED_SPREAD_DEG:g} deg"
+    head = f"{limit_words(b)}, reference {reference}: {network_verdict(outcome)} ({numbers})"
     header = f"  {'generator':<9} {'in sync':>7} {'settled':>7} {'settle (s)':>10} {'max|P_ST| (pu)':>14} " \
              f"{'max|P_ST| (MW)':>14} {'last sat (s)':>12}"
     rows = [head, header, "  " + "-" * (len(header) - 2)]

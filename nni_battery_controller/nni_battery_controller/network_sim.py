@@ -209,7 +209,11 @@ def simulate_network(net: Network, law: NetworkLaw, scenario, limits_pu_mbase, d
     period = 1.0 / rate_hz
     n = int(round(duration_s * rate_hz))
     t = np.arange(n + 1) * period
-    x = np.repeat(scenario.initial_state(net)[:, :, None], runs, axis=2)
+    x = scenario.initial_state(net)
+    if x.ndim == 2:  # one state for every run; else (2, N, R): each run its own (InitialStates)
+        x = np.repeat(x[:, :, None], runs, axis=2)
+    elif x.shape[2] != runs:
+        raise ValueError(f"{x.shape[2]} initial states for {runs} runs")
     controller = NetworkController(law, period, limits)
     shape = (n + 1, net.size, runs)
     delta, speed, power, w, saturated = (np.full(shape, np.nan) for _ in range(5))

@@ -46,6 +46,7 @@ from nni_battery_controller.options import (
     link_of,
     resolve_model,
 )
+from nni_battery_controller.law_roa import COMPARISON_GRID, basin_summary, roa_description, sampled_basin
 from nni_battery_controller.roa import RETURNS, STEP_S as ROA_STEP_S, RoaGrid, report, sweep
 from nni_battery_controller.simulate import fastest_rate_per_s, simulate_continuous, simulate_sampled
 from nni_battery_controller.study_common import (
@@ -136,8 +137,9 @@ def build_parser() -> OneLineParser:
                              "by bisection to 1 ms (in synchronism over --duration), printed and in --json as cct_s")
     parser.add_argument("--compare-laws", action="store_true",
                         help="every battery law (nni, nni-unsaturated, droop, vsm, pss) per b, sampled at the PMU "
-                             "rate: verdict, settling, battery energy, time in saturation and the transfer-limit "
-                             "fault's CCT; a table, --json, --plot (CCT against b per law); docs/laws.md (default: off)")
+                             "rate: verdict, settling, battery energy, time in saturation, the transfer-limit "
+                             "fault's CCT and the region of attraction on a 41 x 41 grid; a table, --json, --plot "
+                             "(CCT and ROA area against b per law); docs/laws.md (default: off)")
     parser.add_argument("--tune-laws", action="store_true",
                         help="the fair-tuning search behind the shipped gains: per law the same number of candidate "
                              "gains, each run and its transfer-limit fault's CCT found; the law's pick: the longest "
@@ -384,7 +386,18 @@ def run_compare_laws(args, model, plant: SmibParams) -> int:
     if args.battery_energy_pu_s is not None:
         print(f"every law with a battery of {args.battery_energy_pu_s:g} pu s to deliver and as much room to absorb, "
               "from half charge (empty at: when it first ran empty, '-' never)")
-    rows = compare(laws_by_b, *law_runners(args, model, plant))
+        print("ROA: not swept ('-'): the sweep models an unlimited battery")
+        roa_of = None
+    else:
+        grid = COMPARISON_GRID
+        print(f"ROA: region of attraction, {grid.n_angle} x {grid.n_speed} initial conditions after the fault has "
+              f"cleared (angle within +-pi, speed within +-{grid.speed_max_rad_s:g} rad/s, the law's state at 0), "
+              f"each law sampled at {rate:g} Hz for {args.duration:g} s: the area in rad x rad/s that stays in sync "
+              "(sync) and that settles (back)")
+
+        def roa_of(law):
+            return basin_summary(sampled_basin(plant, law, grid, args.duration, rate))
+    rows = compare(laws_by_b, *law_runners(args, model, plant), roa_of)
     print(format_rows(rows))
     print(f"energy in MWh: pu s x {MWH_PER_PU_S_100MVA:.5f} per 100 MVA of rating; saturated: the output at +-b")
     if args.json:
@@ -392,11 +405,12 @@ def run_compare_laws(args, model, plant: SmibParams) -> int:
                                "duration_s": args.duration, "cct_scenario": {"name": "transfer_limit_fault",
                                                                              "fault_p_max_pu": fault_p_max},
                                "tolerance_s": CCT_TOLERANCE_S, "battery_energy_pu_s": args.battery_energy_pu_s,
+                               "roa": None if roa_of is None else roa_description(COMPARISON_GRID, args.duration),
                                "rows": rows})
         print(f"wrote {args.json}")
     if args.plot:
-        save_png(comparison_figure(rows, f"Critical clearing time per battery law, SMIB, sampled at {rate:g} Hz"),
-                 args.plot)
+        what = "Critical clearing time" + ("" if roa_of is None else " and region of attraction")
+        save_png(comparison_figure(rows, f"{what} per battery law, SMIB, sampled at {rate:g} Hz"), args.plot)
         print(f"wrote {args.plot}")
     return 0
 

@@ -159,6 +159,33 @@ class AngleDisplacement(_SameInEveryRun):
         return ()
 
 
+@dataclass(frozen=True)
+class InitialStates(_SameInEveryRun):
+    """Run r starts from its own state, network intact: angles ``angle_dev_rad[:, r]`` from equilibrium and speed
+    deviations ``speed_rad_s[:, r]`` (each (N, R)); the post-fault system of a region-of-attraction sweep."""
+
+    angle_dev_rad: np.ndarray
+    speed_rad_s: np.ndarray
+
+    def __post_init__(self) -> None:
+        if np.shape(self.angle_dev_rad) != np.shape(self.speed_rad_s) or np.ndim(self.angle_dev_rad) != 2:
+            raise ValueError("initial angles and speeds must both be (N, R)")
+        if not (np.all(np.isfinite(self.angle_dev_rad)) and np.all(np.isfinite(self.speed_rad_s))):
+            raise ValueError("initial angles and speeds must be finite")
+
+    def initial_state(self, net: Network) -> np.ndarray:
+        """(2, N, R): equilibrium plus each run's displacement, at each run's speed."""
+        return np.stack((net.delta_bar_rad[:, None] + self.angle_dev_rad, np.asarray(self.speed_rad_s, dtype=float)))
+
+    def network(self, t_s: float, net: Network):
+        """The pre-fault network and powers."""
+        return net.p_mech_pu, net.coupling
+
+    def breakpoints(self) -> tuple[float, ...]:
+        """None."""
+        return ()
+
+
 #: The scenarios of a network (what :func:`from_values` builds) and, per scenario-specific value (the
 #: network plant node's parameter names), the scenarios it belongs to.
 NETWORK_SCENARIOS = ("bus_fault", "line_trip", "mechanical_step", "angle_displacement")
