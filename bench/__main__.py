@@ -40,7 +40,10 @@ Each table sets a measurement beside a baseline taken in the same run:
     reads, beside the same loop alone (alternating rounds);
 13. ``nni-simulate --compare-laws`` on the SMIB beside the same trajectories
     integrated one at a time by scipy's solve_ivp, and the network
-    comparisons' (Kundur, IEEE 39) wall time.
+    comparisons' (Kundur, IEEE 39) wall time;
+14. every bus fault of IEEE 118 and 300 at b 0 and 0.3 on a 2-worker
+    LocalCluster: the screens' time and their weakest contingencies (about
+    an hour of a full run).
 
 ``--only`` reruns some: their sections replace their namesakes in the page
 (``--out``) and every other section stays as the earlier run wrote it.
@@ -73,7 +76,7 @@ from bench.network_profile import PROFILE_QUICK_RUN, PROFILE_RUN, bench_network_
 from bench.network_realtime import bench_network_realtime
 from bench.report import report, splice
 from bench.roa import bench_roa
-from bench.screening import ANDES_PYTHON, bench_screening
+from bench.screening import ANDES_PYTHON, bench_large_screens, bench_screening
 from nni_msgs_adapter.ros.command_auth import KEY_FILE_ENV, run_key
 from nni_msgs_adapter.ros.processes import ChildError
 
@@ -82,7 +85,7 @@ from nni_msgs_adapter.ros.processes import ChildError
 ROUNDS = 3
 #: What --only selects (all by default).
 BENCHMARKS = ("latency", "lockstep", "roa", "network-lockstep", "network-realtime", "network-profile", "c37118-loop",
-              "command-auth", "c37118-server", "screening", "foxglove", "law-comparison")
+              "command-auth", "c37118-server", "screening", "foxglove", "law-comparison", "screening-large")
 
 
 def parse_args(argv=None):
@@ -135,6 +138,8 @@ def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates, domain_i
             env, C37118_SERVER_FRAMES // 10 if quick else C37118_SERVER_FRAMES, 5.0 if quick else duration_s)
     if "screening" in only:
         results["screening"] = bench_screening(quick, andes_python)
+    if "screening-large" in only:
+        results["screening-large"] = bench_large_screens(quick)
     if "foxglove" in only:
         results["foxglove"] = bench_foxglove(env, log_root, 10.0 if quick else 30.0, 3 if quick else 5)
     if "law-comparison" in only:

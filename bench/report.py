@@ -14,7 +14,7 @@ from bench.network_lockstep import network_lockstep_section
 from bench.network_profile import network_profile_section
 from bench.network_realtime import network_realtime_section
 from bench.roa import roa_section
-from bench.screening import screening_section
+from bench.screening import large_screens_section, screening_section
 
 #: The page's sections in order: the key of a run's results each reports, and the function that writes it.
 SECTIONS = (("latency", latency_section), ("controller-share", share_section), ("lockstep", lockstep_section),
@@ -22,7 +22,7 @@ SECTIONS = (("latency", latency_section), ("controller-share", share_section), (
             ("network-realtime", network_realtime_section), ("network-profile", network_profile_section),
             ("c37118-loop", c37118_loop_section), ("command-auth", command_auth_section),
             ("c37118-server", c37118_server_section), ("screening", screening_section), ("foxglove", foxglove_section),
-            ("law-comparison", law_comparison_section))
+            ("law-comparison", law_comparison_section), ("screening-large", large_screens_section))
 
 
 def report(command: str, machine: dict, quick: bool, results: dict, started: str, wall_s: float) -> str:
@@ -31,7 +31,7 @@ def report(command: str, machine: dict, quick: bool, results: dict, started: str
              f"Written by `{command}` on {started} (whole run {wall_s:.0f} s of wall time). "
              "Every table sets a measurement beside a baseline taken in the same run; the targets are issue 5's "
              "(sections 1-3), issue 23's (sections 4-5; issue 14 built them), issue 22's (sections 8 and 10), issue 33's "
-             "(section 11), issue 34's (section 12) and issue 32's (section 13).", ""]
+             "(section 11), issue 34's (section 12), issue 32's (section 13) and issue 33's (section 14).", ""]
     if quick:
         lines += ["> **`--quick` run**: shortened durations for development, not the numbers to publish.", ""]
     lines += machine_section(machine)

@@ -17,7 +17,8 @@ HEADINGS = ["## 1. Closed-loop latency", "### 1b. The controller's share", "## 2
             "## 10. C37.118 PMU server: frames per second and reporting latency",
             "## 11. Contingency screen: serial beside a 2-worker LocalCluster",
             "## 12. The Foxglove bridge and a client that never reads",
-            "## 13. Law comparison beside a per-trajectory scipy loop"]
+            "## 13. Law comparison beside a per-trajectory scipy loop",
+            "## 14. Every bus fault of IEEE 118 and 300"]
 
 
 def latency_row(rate_hz: float, p50_ratio: float, misses: int = 0) -> dict:
@@ -89,7 +90,22 @@ def results(latency_ratio: float = 1.2, network_ratio: float = 1.8) -> dict:
         "screening": screening_result(40.0, 0.5),
         "foxglove": foxglove_result(),
         "law-comparison": law_comparison_result(26.0),
+        "screening-large": large_screens_result(),
     }
+
+
+def large_screens_result() -> dict:
+    engine = {"engine": "LocalCluster", "workers": 2, "wall_s": 600.0, "compute_s": 1188.0}
+    return {"quick": False, "limits": ("0", "0.3"), "screens": [
+        {"case": "ieee118", "engine": engine, "command_s": 603.0, "contingencies": 118, "skipped": 0, "rows": 236,
+         "weakest": {"0": [("bus:59", 0.425, False, "G25@59")], "0.3": [("bus:1", 1.0, True, "G54@116")]}}]}
+
+
+def test_the_large_screens_report_their_time_and_their_weakest_contingencies_the_search_limit_marked():
+    text = page({"screening-large": large_screens_result()})
+    assert "| ieee118 | 118 | 0 | 236 | 600 | 603 | 0.197 | 1.0 % |" in text
+    assert "| ieee118 | 0 | bus:59 0.425 (G25@59) |" in text
+    assert "| ieee118 | 0.3 | bus:1 >= 1.000 (G54@116) |" in text
 
 
 def foxglove_result(stalled: float = 0.9, reading: float = 1.5, spread: float = 1.2) -> dict:
@@ -348,7 +364,8 @@ def test_the_never_reading_client_is_judged_against_a_reading_one_and_the_noise(
 
 
 def law_comparison_result(ieee39_s: float, scipy_cct: float = 0.187) -> dict:
-    return {"argv": "--compare-laws --b 0 0.2 0.3 inf --duration 10", "ours_s": 6.0, "trajectories": 360,
+    return {"argv": "--compare-laws --b 0 0.2 0.3 inf --duration 10", "ours_s": 8.0, "roa_s": 2.0,
+            "trajectories_s": 6.0, "trajectories": 360,
             "scipy_s": 4.0, "scipy_runs": 51, "per_trajectory_ms": 78.4, "ours_per_trajectory_ms": 16.7,
             "scipy_extrapolated_s": 28.2, "checked": [{"law": "nni", "scipy_cct_s": scipy_cct, "ours": "0.187",
                                                      "runs": 17}],
@@ -361,8 +378,8 @@ def law_comparison_result(ieee39_s: float, scipy_cct: float = 0.187) -> dict:
 ])
 def test_the_law_comparison_is_set_beside_scipy_and_judged_on_its_wall_times(ieee39_s, scipy_cct, verdicts):
     text = page({"law-comparison": law_comparison_result(ieee39_s, scipy_cct)})
-    assert "| 6.00 | 360 | 16.7 | 78.4 | 28 | 4.7x |" in text
-    assert "the SMIB comparison 6.0 s < 60 s: met" in text
+    assert "| 8.00 | 2.00 | 360 | 16.7 | 78.4 | 28 | 4.7x |" in text
+    assert "the SMIB comparison 8.0 s < 60 s: met" in text
     for words in verdicts:
         assert words in text
 
