@@ -128,7 +128,7 @@ def test_a_client_sees_the_smib_run_live_as_recorded_and_a_hostile_one_disturbs_
     url = f"ws://127.0.0.1:{port}"
 
     async def clients():
-        good = asyncio.create_task(record(url, {"/pmu", "/battery/command", "/nni/run"}, 120.0))
+        good = asyncio.create_task(record(url, {"/pmu", "/battery/command", "/nni/run", "/nni/verdict"}, 120.0))
         await asyncio.sleep(1.0)
         bad = await misbehave(url)
         return await good, bad
@@ -149,6 +149,11 @@ def test_a_client_sees_the_smib_run_live_as_recorded_and_a_hostile_one_disturbs_
             for topic in SMIB_TOPICS} == {topic: ("cdr", "ros2msg", name) for topic, name in SMIB_TOPICS.items()}
     label = json.loads(seen["messages"]["/nni/run"][0][1])
     assert (label["run"], label["b"], label["law"], label["mode"]) == (1, 0.3, "nni", "realtime"), label
+    # The stream ends with the verdict the demo printed, on its channel and in the last label.
+    (verdict,) = [json.loads(data) for _, data in seen["messages"]["/nni/verdict"]]
+    assert (verdict["run"], verdict["b"], verdict["in_synchronism"], verdict["compromised"]) == (1, 0.3, True, False)
+    assert f"b = 0.3   {verdict['verdict']}" in out, (verdict, out)
+    assert json.loads(seen["messages"]["/nni/run"][-1][1])["verdict"] == verdict["verdict"]
     store = stream_typestore(channels)
     recording = tmp_path / "paper_b0.3.mcap"
     summary = json.loads((tmp_path / "summary.json").read_text())["scenarios"][0]
@@ -181,10 +186,11 @@ def test_a_client_sees_every_run_of_a_composed_network_live(tmp_path):
     subscribed: CI once saw no /gen1/pmu message at all.)"""
     domain, port = fresh_domain_id(), free_port()
     url = f"ws://127.0.0.1:{port}"
-    topics = {f"/gen{k}/{name}" for k in range(1, 5) for name in ("pmu", "battery/command")} | {"/nni/run"}
+    topics = {f"/gen{k}/{name}" for k in range(1, 5) for name in ("pmu", "battery/command")}
+    own = {"/nni/run", "/nni/verdict"}  # the bridge's channels, not the loop's
 
     async def two_runs():
-        return [await record(url, topics, 120.0) for _ in range(2)]
+        return [await record(url, topics | own, 120.0) for _ in range(2)]
 
     with busy_processes(2):
         demo = start_demo(["--case", "kundur_two_area", "--deployment", "composed", "--mode", "lockstep",
@@ -201,14 +207,17 @@ def test_a_client_sees_every_run_of_a_composed_network_live(tmp_path):
         label = json.loads(seen["messages"]["/nni/run"][0][1])
         assert (label["run"], label["case"], label["deployment"], label["b"]) == (index, "kundur_two_area",
                                                                                   "composed", float(b)), label
+        (verdict,) = [json.loads(data) for _, data in seen["messages"]["/nni/verdict"]]
+        assert (verdict["run"], verdict["case"], verdict["compromised"]) == (index, "kundur_two_area", False)
+        assert f"reference pmu: {verdict['verdict']} (max angle spread" in out, (verdict, out)
         recording = tmp_path / f"kundur_two_area_bus_fault_b{b}.mcap"
-        for topic in topics - {"/nni/run"}:
+        for topic in topics:
             got = [data for _, data in seen["messages"].get(topic, [])]
             assert is_subsequence(got, recorded(recording, topic)), (b, topic, len(got))
         bridge = (tmp_path / "logs" / recording.stem / "foxglove_bridge.log").read_text()
         counts = json.loads(bridge.split("foxglove_bridge counts: ", 1)[1].splitlines()[0])
         assert counts["foreign"] == {}
-        assert all(counts["counts"][topic] == len(recorded(recording, topic)) for topic in topics - {"/nni/run"})
+        assert all(counts["counts"][topic] == len(recorded(recording, topic)) for topic in topics)
     assert check_layout_reads(json.loads((LAYOUTS / "nni_kundur_two_area.json").read_text()), recording) == 28
 
 

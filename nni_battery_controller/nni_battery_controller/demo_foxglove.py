@@ -8,19 +8,22 @@ subscribed to every ``pmu`` and controller topic, and the plant counts it among 
 client connected from the start sees every sample. The server is the same address run after run (a client
 reconnects when a run ends: Foxglove does so by itself). A lockstep run is over in a fraction of a second, before
 a client that reconnects can subscribe: with ``--foxglove-wait`` each run starts only once a client has subscribed
-to one of its channels (the bridge logs each subscription), and waits for it as long as it takes.
+to one of its channels (the bridge logs each subscription), and waits for it as long as it takes. Once the run
+is judged, its verdict goes to the bridge (a file it watches) and out on ``/nni/verdict`` before the bridge stops.
 """
 
 from __future__ import annotations
 
 import json
+import math
+import os
 import time
 from pathlib import Path
 
 from nni_msgs_adapter.c37118.profile import address_text, parse_server_address
 from nni_msgs_adapter.ros.cli_support import CliError
 from nni_msgs_adapter.ros.processes import ChildError
-from nni_msgs_adapter.viewing.foxglove_bridge import SERVING_TEXT, SUBSCRIBED_PREFIX
+from nni_msgs_adapter.viewing.foxglove_bridge import SERVING_TEXT, SUBSCRIBED_PREFIX, VERDICT_PREFIX
 from nni_battery_controller.demo_common import wait_for_recorder
 
 #: Where ``--foxglove`` without an address serves: Foxglove's default port, on loopback.
@@ -28,6 +31,10 @@ DEFAULT_ADDRESS = "127.0.0.1:8765"
 MODULE = "nni_msgs_adapter.viewing.foxglove_bridge"
 #: How long a bridge may take to listen (a loaded machine starts a Python process slowly).
 SERVE_WAIT_S = 60.0
+#: How long a bridge may take to send a run's verdict once it is written (it looks every discovery period, 0.1 s).
+VERDICT_WAIT_S = 30.0
+#: The file in a run's log folder the demo writes its verdict to, for the bridge.
+VERDICT_FILE = "foxglove_verdict.json"
 
 
 def add_foxglove_option(parser) -> None:
@@ -61,7 +68,8 @@ def start_bridge(procs, address: str | None, env: dict, label: dict, logs: Path)
     if address is None:
         return None
     bridge = procs.start_node("foxglove_bridge", MODULE, {"address": address, "discovery_period_s": 0.1,
-                                                          "run_label": json.dumps(label)}, env=env)
+                                                          "run_label": json.dumps(label),
+                                                          "verdict_file": str(logs / VERDICT_FILE)}, env=env)
     try:
         bridge.wait_for_line(SERVING_TEXT, SERVE_WAIT_S)
     except ChildError:
@@ -88,6 +96,24 @@ def wait_streaming(bridge, writers: dict, logs: Path, index: int, hold: bool) ->
             raise CliError(f"the Foxglove bridge exited while run {index} waited for a client: {bridge.last_line()} "
                            f"(logs in {logs})")
         time.sleep(0.05)
+
+
+def stream_verdict(bridge, logs: Path, verdict: dict) -> None:
+    """Give ``bridge`` (None: nothing to do) the run's ``verdict`` (``verdict``: the words the demo prints; the
+    rest as the summary says) and wait until it has sent it on /nni/verdict: the stream ends with it."""
+    if bridge is None:
+        return
+    path = logs / VERDICT_FILE
+    partial = path.with_suffix(".partial")
+    strict = {key: str(value) if isinstance(value, float) and not math.isfinite(value) else value
+              for key, value in verdict.items()}  # b = inf as the word "inf": a client gets strict JSON
+    partial.write_text(json.dumps(strict, allow_nan=False), encoding="utf-8")
+    os.replace(partial, path)  # whole or not at all: the bridge never reads half a verdict
+    try:
+        bridge.wait_for_line(VERDICT_PREFIX, VERDICT_WAIT_S)
+    except ChildError:
+        raise CliError(f"the Foxglove stream is partial: the bridge did not send the run's verdict "
+                       f"({bridge.last_line()}; logs in {logs})") from None
 
 
 def stated(bridge) -> list:

@@ -80,7 +80,7 @@ from nni_battery_controller.network_deployment import (
     scenario_parameters,
     start_controllers,
 )
-from nni_battery_controller.network_sim import ANGLE_REFERENCES, assess_network
+from nni_battery_controller.network_sim import ANGLE_REFERENCES, assess_network, network_verdict
 from nni_battery_controller.options import add_network_law_options, network_laws_of
 from nni_battery_controller.recorded_runs import network_trajectory
 from nni_battery_controller.study_common import software_version
@@ -311,34 +311,39 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
             controller.stop()
         if logger.stop() != 0:
             raise CliError(f"the logger {logger.how_it_ended()}: {logger.tail()}")
-    wall_s = time.monotonic() - started
-    counts = logger_counts(logger.output())
-    loops = plant_summary(plant.output(), SUMMARY_PREFIX)
-    for ns in spaces:
-        check_complete(recording, counts.get(f"/{ns}/{contract.TOPIC_PMU}", 0), int(loops[ns]["measurements"]),
-                       logs, f" to /{ns}")
-        check_complete(recording, counts.get(f"/{ns}/{contract.TOPIC_BATTERY_COMMAND}", 0),
-                       int(loops[ns]["commands"]), logs, f" from /{ns}'s controller",
-                       "battery commands the plant received")
-    runs = read_generator_runs(recording)
-    if bridge is not None:
-        wait_for_bridge(bridge, index, runs, logs)
-    traj = network_trajectory(runs, net, [f"/{ns}" for ns in spaces], limits)
-    outcome = assess_network(traj)[0]
-    outcome_json = outcome.to_json()
-    result = {"b": json_b(b), "gen_b": {f"gen{i + 1}": json_b(v) for i, v in sorted(args.gen_limits.items())},
-              "reference": args.reference, **{k: v for k, v in outcome_json.items() if k != "generators"},
-              "deployment": args.deployment, "mode": args.mode, "rate_hz": args.rate,
-              "measurements": args.measurements, "recording": str(recording),
-              "wall_time_s": round(wall_s, 3),
-              "generators": {ns: generator_result(g, loops[ns], counts, ns)
-                             for ns, g in zip(spaces, outcome_json["generators"])}}
-    if watch is not None:
-        result["c37118"] = watch.summary()
-    compromised = {ns: reasons for i, ns in enumerate(spaces)
-                   if (reasons := compromised_reasons(loops[ns], runs[f"/{ns}"], float(limits[i])))}
-    if compromised:
-        result["compromised"] = compromised
+        wall_s = time.monotonic() - started
+        counts = logger_counts(logger.output())
+        loops = plant_summary(plant.output(), SUMMARY_PREFIX)
+        for ns in spaces:
+            check_complete(recording, counts.get(f"/{ns}/{contract.TOPIC_PMU}", 0), int(loops[ns]["measurements"]),
+                           logs, f" to /{ns}")
+            check_complete(recording, counts.get(f"/{ns}/{contract.TOPIC_BATTERY_COMMAND}", 0),
+                           int(loops[ns]["commands"]), logs, f" from /{ns}'s controller",
+                           "battery commands the plant received")
+        runs = read_generator_runs(recording)
+        if bridge is not None:
+            wait_for_bridge(bridge, index, runs, logs)
+        traj = network_trajectory(runs, net, [f"/{ns}" for ns in spaces], limits)
+        outcome = assess_network(traj)[0]
+        outcome_json = outcome.to_json()
+        result = {"b": json_b(b), "gen_b": {f"gen{i + 1}": json_b(v) for i, v in sorted(args.gen_limits.items())},
+                  "reference": args.reference, **{k: v for k, v in outcome_json.items() if k != "generators"},
+                  "deployment": args.deployment, "mode": args.mode, "rate_hz": args.rate,
+                  "measurements": args.measurements, "recording": str(recording),
+                  "wall_time_s": round(wall_s, 3),
+                  "generators": {ns: generator_result(g, loops[ns], counts, ns)
+                                 for ns, g in zip(spaces, outcome_json["generators"])}}
+        if watch is not None:
+            result["c37118"] = watch.summary()
+        compromised = {ns: reasons for i, ns in enumerate(spaces)
+                       if (reasons := compromised_reasons(loops[ns], runs[f"/{ns}"], float(limits[i])))}
+        if compromised:
+            result["compromised"] = compromised
+        # Judged with the bridge still up: the Foxglove stream ends with the verdict the demo prints.
+        demo_foxglove.stream_verdict(foxglove, logs, {
+            "run": index, "b": b, "case": args.case, "in_synchronism": bool(outcome.in_synchronism),
+            "compromised": bool(compromised),
+            "verdict": compromised_line(result, limits, spaces) if compromised else network_verdict(outcome)})
     return result, outcome, traj, limits
 
 

@@ -227,37 +227,41 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
         controller.stop()
         if logger.stop() != 0:
             raise CliError(f"the logger {logger.how_it_ended()}: {logger.tail()}")
-    wall_s = time.monotonic() - started
-    counts = logger_counts(logger.output())
-    summary = plant_summary(plant.output())
-    check_complete(recording, counts.get("/pmu", 0), int(summary["measurements"]), logs)
-    check_complete(recording, counts.get(f"/{contract.TOPIC_BATTERY_COMMAND}", 0), int(summary["commands"]), logs,
-                   " from the controller", "battery commands the plant received")
-    run = read_generator_run(recording)
-    if bridge is not None:
-        wait_for_bridge(bridge, index, run, logs)
-    # Assessed with the very model and scenario the nodes ran with.
-    traj = sampled_trajectory(run, args.model.smib(), args.model.controller_params(b))
-    outcome = assess(traj, scenario=args.model.scenario()).to_json()
-    diag = run.diagnostics
-    outcome.update({
-        "mode": args.mode, "rate_hz": args.rate, "measurements": args.measurements, "recording": str(recording),
-        "wall_time_s": round(wall_s, 3),
-        "samples": int(diag.get("samples", 0)),
-        # The plant measures latency to the nanosecond: more digits are float noise (0.33549999999999996).
-        "latency_ms": {q: round(float(diag[f"latency_{q}_ms"]), 6) for q in ("p50", "p99", "max")
-                       if f"latency_{q}_ms" in diag},
-        "dropped_samples": int(diag.get("deadline_misses", 0)),
-        "late_samples": int(diag.get("late", 0)),
-        # Reporting instants a stalled realtime plant skipped (an overloaded core): measurements never sent.
-        "skipped_reports": int(summary.get("skipped_reports", 0)),
-        "logger_counts": counts,
-    })
-    if watch is not None:
-        outcome["c37118"] = watch.summary()
-    reasons = compromised_reasons(summary, run, b)
-    if reasons:
-        outcome["compromised"] = reasons
+        wall_s = time.monotonic() - started
+        counts = logger_counts(logger.output())
+        summary = plant_summary(plant.output())
+        check_complete(recording, counts.get("/pmu", 0), int(summary["measurements"]), logs)
+        check_complete(recording, counts.get(f"/{contract.TOPIC_BATTERY_COMMAND}", 0), int(summary["commands"]), logs,
+                       " from the controller", "battery commands the plant received")
+        run = read_generator_run(recording)
+        if bridge is not None:
+            wait_for_bridge(bridge, index, run, logs)
+        # Assessed with the very model and scenario the nodes ran with.
+        traj = sampled_trajectory(run, args.model.smib(), args.model.controller_params(b))
+        outcome = assess(traj, scenario=args.model.scenario()).to_json()
+        diag = run.diagnostics
+        outcome.update({
+            "mode": args.mode, "rate_hz": args.rate, "measurements": args.measurements, "recording": str(recording),
+            "wall_time_s": round(wall_s, 3),
+            "samples": int(diag.get("samples", 0)),
+            # The plant measures latency to the nanosecond: more digits are float noise (0.33549999999999996).
+            "latency_ms": {q: round(float(diag[f"latency_{q}_ms"]), 6) for q in ("p50", "p99", "max")
+                           if f"latency_{q}_ms" in diag},
+            "dropped_samples": int(diag.get("deadline_misses", 0)),
+            "late_samples": int(diag.get("late", 0)),
+            # Reporting instants a stalled realtime plant skipped (an overloaded core): measurements never sent.
+            "skipped_reports": int(summary.get("skipped_reports", 0)),
+            "logger_counts": counts,
+        })
+        if watch is not None:
+            outcome["c37118"] = watch.summary()
+        reasons = compromised_reasons(summary, run, b)
+        if reasons:
+            outcome["compromised"] = reasons
+        # Judged with the bridge still up: the Foxglove stream ends with the verdict the demo prints.
+        demo_foxglove.stream_verdict(foxglove, logs, {
+            "run": index, "b": b, "in_synchronism": outcome["in_synchronism"], "compromised": bool(reasons),
+            "verdict": compromised_text(b, reasons) if reasons else verdict_text(outcome)})
     return outcome, traj
 
 

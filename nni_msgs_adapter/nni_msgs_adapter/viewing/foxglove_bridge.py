@@ -9,6 +9,9 @@ each on a Foxglove server (``foxglove-sdk``) as a channel of the same name, ``cd
 ``ros2msg`` schema rosbag2 writes (:func:`nni_msgs_adapter.recording.mcap_profile.message_definition`), so that
 Foxglove's panels decode them as they decode foxglove_bridge's. The bytes are passed on as they came, never
 decoded. A channel ``/nni/run`` (JSON) says once a second which run is on (``run_label``: b, law, case, ...).
+The run's verdict, once its launcher has judged the recording, comes on ``/nni/verdict`` (JSON): the launcher
+writes it to ``verdict_file`` (one JSON object, written whole by a rename), the bridge sends it once, adds its
+words to the label and logs ``streamed the verdict: <words>``.
 
 With the run's key (``NNI_COMMAND_KEY_FILE``) every sealed topic is checked as the logger checks it
 (:class:`nni_msgs_adapter.ros.contract.SealCheck`); what does not verify goes to ``/nni_foreign/<topic>``, so a
@@ -53,6 +56,13 @@ SERVING_TEXT = "foxglove bridge serving on"
 COUNTS_PREFIX = "foxglove_bridge counts: "
 #: The channel that says which run is on.
 RUN_TOPIC = "/nni/run"
+#: The channel of the run's verdict (once, when its launcher has judged the run).
+VERDICT_TOPIC = "/nni/verdict"
+#: Logged (INFO) once the verdict is sent, its words after it.
+VERDICT_PREFIX = "streamed the verdict: "
+_VERDICT_SCHEMA = {"type": "object", "title": "nni verdict", "properties": {
+    "verdict": {"type": "string"}, "in_synchronism": {"type": "boolean"}, "compromised": {"type": "boolean"}},
+    "required": ["verdict"], "additionalProperties": True}
 _RUN_SCHEMA = {"type": "object", "title": "nni run", "properties": {"label": {"type": "string"}},
                "additionalProperties": True}
 
@@ -72,6 +82,9 @@ def parameters() -> tuple[Spec, ...]:
              "the loop's nodes (0: as they).", 0, 19, read_only=True),
         Spec("run_label", defaults["run_label"], f"The run on air, a JSON object, sent on {RUN_TOPIC} once a second.",
              read_only=True),
+        Spec("verdict_file", defaults["verdict_file"], f"A file the launcher writes the run's verdict to (a JSON "
+             f"object with a 'verdict' string), sent once on {VERDICT_TOPIC} when it appears (empty: none).",
+             read_only=True),
     )
 
 
@@ -87,6 +100,12 @@ def run_label(text: str) -> dict:
     if not isinstance(value, dict):
         raise ValueError("run_label must be a JSON object")
     return value
+
+
+def json_channel(topic: str, name: str, schema: dict) -> foxglove.Channel:
+    """A Foxglove channel of JSON messages under a JSON Schema (the bridge's own: the run and its verdict)."""
+    return foxglove.Channel(topic, message_encoding="json", schema=foxglove.Schema(
+        name=name, encoding="jsonschema", data=json.dumps(schema).encode()))
 
 
 def ros2_channel(topic: str, type_name: str) -> foxglove.Channel:
@@ -122,8 +141,10 @@ class FoxgloveBridge(Node):
         except Exception as exc:  # the SDK raises its own error types (address in use, ...)
             raise ValueError(f"cannot serve Foxglove on {address_text(host, port)}: {exc}") from None
         self.url = f"ws://{address_text(host, self._server.port)}"
-        self._run_channel = foxglove.Channel(RUN_TOPIC, message_encoding="json", schema=foxglove.Schema(
-            name="nni/Run", encoding="jsonschema", data=json.dumps(_RUN_SCHEMA).encode()))
+        self._run_channel = json_channel(RUN_TOPIC, "nni/Run", _RUN_SCHEMA)
+        self._verdict_file = values["verdict_file"]
+        self._verdict_channel = json_channel(VERDICT_TOPIC, "nni/Verdict", _VERDICT_SCHEMA) \
+            if self._verdict_file else None
         self._streamed: dict[str, object] = {}
         self._matches = WriterMatches()
         self.counts: dict[str, int] = {}
@@ -141,7 +162,26 @@ class FoxgloveBridge(Node):
     def _send_label(self) -> None:
         self._run_channel.log({"label": ", ".join(f"{k} {v}" for k, v in self._label.items()), **self._label})
 
+    def _send_verdict(self) -> None:
+        """Once ``verdict_file`` exists: send it on /nni/verdict, put its words in the label (a file that is no
+        JSON object with a 'verdict' string is named at ERROR once and not sent)."""
+        if self._verdict_channel is None or not os.path.exists(self._verdict_file):
+            return
+        try:
+            verdict = json.loads(open(self._verdict_file, encoding="utf-8").read())
+            if not isinstance(verdict, dict) or not isinstance(verdict.get("verdict"), str):
+                raise ValueError("not a JSON object with a 'verdict' string")
+        except (OSError, ValueError) as exc:
+            self.get_logger().error(f"verdict_file {self._verdict_file}: {exc}; no verdict streamed")
+        else:
+            self._verdict_channel.log(verdict)
+            self._label["verdict"] = verdict["verdict"]
+            self._send_label()
+            self.get_logger().info(VERDICT_PREFIX + verdict["verdict"])
+        self._verdict_channel = None
+
     def _scan_graph(self) -> None:
+        self._send_verdict()
         for topic, name, _ in new_loop_topics(self, self._streamed):
             msg_class, _, qos = contract.recorder_endpoint(name)
             self._streamed[topic] = self.create_subscription(msg_class, topic, self._forward(topic, name), qos,
