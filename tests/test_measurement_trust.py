@@ -66,9 +66,13 @@ def assert_flagged(demo, counts: dict, reasons: dict, measurements_attacked: boo
     """Exit 3, a COMPROMISED line naming the controller's counters, and the counters say what the rogue did."""
     assert demo.returncode == 3, demo.stdout + demo.stderr
     assert "COMPROMISED" in demo.stdout and "compromised" in demo.stderr, demo.stdout
-    assert counts["real_seen"] > 0 and counts["clock"] > 0, counts
+    assert counts["real_seen"] > 0 and counts["clock"] > 0 and counts["statuses"] > 0, counts
     assert reasons.get("foreign_clock_writers", 0) >= 1, reasons
     assert "foreign clock writers" in demo.stdout
+    # Its forged run_ended notices: refused and counted, never taken for the plant's end of run (the run went on
+    # to its duration, which the callers check in the recording).
+    assert reasons.get("unauthenticated_statuses", 0) >= 1, reasons
+    assert "unauthenticated statuses" in demo.stdout
     if measurements_attacked:
         assert reasons.get("unauthenticated_measurements", 0) > 0, reasons
         assert reasons.get("replayed_measurements", 0) > 0, reasons
