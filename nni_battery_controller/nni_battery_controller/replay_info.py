@@ -74,6 +74,8 @@ def info_lines(recording: Recording, runs: dict[str, GeneratorRun], parameters: 
     lines.append("Foreign messages:  " + (", ".join(f"{topic} {count}" for topic, count in sorted(foreign.items()))
                                           + f" (not sealed by the run's nodes: recorded apart on {FOREIGN_PREFIX}, "
                                             "never read as the loop's)" if foreign else "none"))
+    if parameters is not None:
+        lines.append(f"Law:               {law_text(parameters)}")
     if parameters is None:
         lines.append("Run parameters:    not recorded (no nni_run metadata): no verdicts")
         verdicts = {}
@@ -96,6 +98,29 @@ def info_lines(recording: Recording, runs: dict[str, GeneratorRun], parameters: 
             lines.append(f"Verdicts{' of ' + namespace if namespace else ''}:")
             lines += [f"  {key}: {json_text(value)}" for key, value in verdicts[namespace].items()]
     return lines
+
+
+def law_text(parameters: dict) -> str:
+    """The law that ran and its gains, from a recording's ``nni_run`` record (a network's: the same at every
+    generator, or per generator where they differ): ``pss (pss_k_s 100, ...)``."""
+    from nni_battery_controller.laws import GAIN_PARAMETERS
+    from nni_battery_controller.options import NNI_GAINS
+
+    def one(controller: dict) -> str:
+        name = controller.get("law", "nni")
+        keys = GAIN_PARAMETERS.get(name, NNI_GAINS)
+        text = f"{name} (" + ", ".join(f"{key} {controller[key]:g}" for key in keys if key in controller) + ")"
+        return text if "law" in controller else f"{text}; no law recorded: the recording predates the law " \
+                                                  "parameter, when nni was the only law"
+
+    if "controller" in parameters:
+        return one(parameters["controller"])
+    texts = {namespace: one(controller) for namespace, controller in parameters.get("controllers", {}).items()}
+    if not texts:
+        return "not recorded"
+    if len(set(texts.values())) == 1:
+        return f"{next(iter(texts.values()))} at every generator"
+    return "; ".join(f"{namespace}: {text}" for namespace, text in texts.items())
 
 
 def generator_lines(namespace: str, run: GeneratorRun) -> list[str]:
