@@ -62,4 +62,7 @@ def splice(old: str, new: str, command: str, started: str) -> str:
         sections[number] = [lines[0], "", f"> Rerun alone by `{command}` on {started}; the other sections are "
                                           "the earlier run's.", *lines[1:]]
     ordered = sorted(sections, key=int)
+    for number in ordered:  # a page's last section lost its closing blank line to splitlines()
+        if sections[number][-1] != "":
+            sections[number].append("")
     return "\n".join(head + [line for number in ordered for line in sections[number]])

@@ -390,6 +390,7 @@ def test_a_rerun_of_some_benchmarks_replaces_only_their_sections_and_says_so():
     spliced = splice(earlier, rerun, "bench/run_all --only roa law-comparison", "2026-02-02 00:00 UTC")
     places = [spliced.index(heading) for heading in HEADINGS]
     assert places == sorted(places)  # every earlier section kept, in order, the new one after them
+    assert all(f"\n\n{heading}" in spliced for heading in HEADINGS[1:])  # each after a blank line
     assert spliced.count("> Rerun alone by `bench/run_all --only roa law-comparison` on 2026-02-02 00:00 UTC") == 2
     untouched = earlier[earlier.index(HEADINGS[0]):earlier.index(HEADINGS[3])]
     assert untouched in spliced
