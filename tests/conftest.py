@@ -7,6 +7,7 @@ case" means in the tests.
 
 from __future__ import annotations
 
+import signal
 import sys
 from pathlib import Path
 
@@ -21,6 +22,15 @@ CORE_TEST_MODULES = frozenset({
     "test_network_law", "test_plant_model", "test_reporting", "test_screening_core", "test_simulation",
     "test_synthetic_case",
 })
+
+
+def pytest_configure(config):
+    """Let the children the tests start be interrupted. A suite started in the background of a shell without job
+    control (``./.ci/run &``, ``nohup``) inherits SIGINT ignored, and a process exec'd with SIGINT ignored keeps
+    it so: the tests that Ctrl-C a screen or a demo then saw it run on to its end (exit 0 where 130 was due,
+    or no exit within 60 s). A Python handler, unlike SIG_IGN, is reset to the default at exec."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def pytest_collection_modifyitems(items):
