@@ -94,6 +94,7 @@ def launched_nodes(values: dict) -> dict:
              "battery_rating_pu": values["battery_limit_pu"], "hold_until_released": True,
              # the controller and the logger, and the Foxglove bridge when there is one
              "wait_for_subscribers": demo_c37118.plant_readers(measurements, 2, bridge is not None),
+             "wait_for_recorders": 1 + (bridge is not None),  # on plant/state: the logger and the bridge
              **stream}
     nodes = {
         "plant": plant,

@@ -210,7 +210,8 @@ def network_nodes(given: dict) -> list[dict]:
     bridge = launch_bridge(values["foxglove"], values["foxglove_address"], {
         "case": case, "b": limits.tolist(), "law": law_name, "scenario": scenario["scenario"], "mode": values["mode"]})
     plant = {**plant_parameters(case, scenario, values["mode"], rate, float(_value(values["duration_s"])), limits,
-                                plant_readers(measurements, 2, bridge is not None)), **stream}
+                                plant_readers(measurements, 2, bridge is not None)),
+             "wait_for_recorders": 1 + (bridge is not None), **stream}  # on plant/state: the logger and the bridge
     nodes = [{"package": LOGGER[0], "executable": LOGGER[1], "name": "mcap_logger", "namespace": "",
               "parameters": {"output_path": values["output_path"]}}]
     nodes += [{"package": CONTROLLER[0], "executable": CONTROLLER[1], "name": "controller", "namespace": ns,

@@ -191,7 +191,7 @@ def network_plant_parameters(args, limits) -> dict:
     viewers = (args.rerun is not None) + (getattr(args, "foxglove_address", None) is not None)
     readers = demo_c37118.plant_readers(args.measurements, pmu_readers(args.net, args.reference), viewers)
     return {**plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration, limits,
-                               readers), **args.stream}
+                               readers), "wait_for_recorders": 1 + viewers, **args.stream}
 
 
 def controllers_parameters(args, limits) -> dict:

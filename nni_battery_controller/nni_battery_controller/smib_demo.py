@@ -89,8 +89,8 @@ from nni_plant_sim.plant_config import parameters as plant_node_parameters
 from nni_plant_sim.scenarios import SCENARIO_FIELDS
 
 #: Plant parameters that set up a run without changing its case (the recording name ignores them; the rating is b).
-RUN_CONTROL = frozenset({"mode", "duration_s", "pmu_rate_hz", "wait_for_subscribers", "battery_rating_pu",
-                         "hold_until_released", "pmu_host", "pmu_port", "pmu_idcode", "pmu_freq_format",
+RUN_CONTROL = frozenset({"mode", "duration_s", "pmu_rate_hz", "wait_for_subscribers", "wait_for_recorders",
+                         "battery_rating_pu", "hold_until_released", "pmu_host", "pmu_port", "pmu_idcode", "pmu_freq_format",
                          "pmu_wait_for_pdcs"})
 
 
@@ -140,11 +140,13 @@ def recording_name(b: float, plant: dict | None = None) -> str:
 def plant_parameters(args, b: float, with_bridge: bool) -> dict:
     """The plant parameters of one run that differ from the package defaults (or set up the run): its battery
     rated b, its run held until the read-back."""
-    # It waits for the controller and the logger, and for the Rerun and Foxglove bridges when there are.
+    # It waits for the controller and the logger, and for the Rerun and Foxglove bridges when there are; on
+    # plant/state for the recorders among them (the logger and the bridges), as its writer sees them.
+    viewers = with_bridge + (getattr(args, "foxglove_address", None) is not None)
     return {**args.model.plant_node_parameters(), "mode": args.mode, "duration_s": args.duration,
             "pmu_rate_hz": args.rate,
-            "wait_for_subscribers": demo_c37118.plant_readers(
-                args.measurements, 2, with_bridge + (getattr(args, "foxglove_address", None) is not None)),
+            "wait_for_subscribers": demo_c37118.plant_readers(args.measurements, 2, viewers),
+            "wait_for_recorders": 1 + viewers,
             "battery_rating_pu": b, "hold_until_released": True, **args.stream}
 
 

@@ -33,6 +33,10 @@ def run_parameters(defaults: dict) -> tuple[Spec, ...]:
         Spec("wait_for_subscribers", defaults["wait_for_subscribers"], "Start only when this many subscribers listen on pmu "
              "(the controller, the logger; a network: on each generator's) and a controller publishes on battery/command; "
              "0 starts at once.", 0, 100),
+        Spec("wait_for_recorders", defaults["wait_for_recorders"], "Start only when plant/state (a network: each "
+             "generator's) has this many subscribers as its writer sees them: the recorders (the logger, a Rerun or "
+             "Foxglove bridge). A recorder that has matched the writer may not yet be matched by it, and then misses "
+             "the first states; 0: no wait.", 0, 100),
         Spec("wait_timeout_s", defaults["wait_timeout_s"], "Give up (error, non-zero exit) after waiting this long for them, s.",
              0.1, 1e6),
         Spec("discovery_settle_s", defaults["discovery_settle_s"], "Once the subscribers are there, wait this long so that every other "

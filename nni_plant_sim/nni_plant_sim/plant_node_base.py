@@ -150,9 +150,14 @@ class PlantNodeBase(LoopNode):
         readers = [pub.get_subscription_count() for pub in pmu_pubs]
         writers = [sub.get_publisher_count() for sub in self._command_subs]
         fewest, silent = readers.index(min(readers)), writers.index(min(writers))
+        recorders = [pub.publisher.get_subscription_count() for pub in self._state_pubs]
+        unseen = recorders.index(min(recorders))
+        wanted = self._values["wait_for_recorders"]
+        also = [f"{wanted} recorder(s) on {self._state_pubs[unseen].publisher.topic_name} (has {recorders[unseen]})"] \
+            if recorders[unseen] < wanted else []
         state, level, text = self._wait.poll(self.now_ns(), readers[fewest], writers[silent],
                                              pmu_pubs[fewest].topic_name, self._command_subs[silent].topic_name,
-                                             self._released)
+                                             self._released, also)
         if state == "start" and self._pdc_wait is not None:
             state, level, text = self._pdc_wait.poll(self.now_ns(), self._stream.streaming, 1,
                                                      f"the C37.118 stream at {self._stream.where} with data on", "")

@@ -541,10 +541,12 @@ class SubscriberWait:
         self.text = ""
 
     def poll(self, now_ns: int, readers: int, writers: int, reader_topic: str, writer_topic: str,
-             released: bool = True):
-        """``released``: False while the plant holds its run for a release (``hold_until_released``)."""
+             released: bool = True, also_missing=()):
+        """``released``: False while the plant holds its run for a release (``hold_until_released``);
+        ``also_missing``: what else the node still waits for, in words."""
         missing = [f"{self.wanted_readers} subscriber(s) on {reader_topic} (has {readers})"] \
             if readers < self.wanted_readers else []
+        missing += list(also_missing)
         if self.wanted_readers > 0 and writers < 1:
             missing.append(f"a controller publishing on {writer_topic} (has none)")
         if not released:
