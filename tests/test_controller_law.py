@@ -167,7 +167,9 @@ def test_unlimited_w_hat_is_half_z_q1_z_and_decreases_at_z_q2_z(plant, gains, b,
     k, tau = ctrl.gain_k, ctrl.tau_s
     q2 = np.array([[-plant.damping_pu, 0, 0], [0, -k / tau, 1 / tau], [0, 1 / tau, -1 / (tau * k)]])
     z_dot = _unsaturated_loop_matrix(plant, tau, k, ctrl.gain_l) @ z
-    assert_allclose(z_dot[2], x3_rate(x3, d, False, ctrl), rtol=1e-13, atol=1e-13 * np.abs(z).max())
+    # (Subnormal states round absolutely too: z = (0, 2.2e-313, 0) differed in its last subnormal bit.)
+    assert_allclose(z_dot[2], x3_rate(x3, d, False, ctrl), rtol=1e-13,
+                    atol=1e-13 * np.abs(z).max() + np.finfo(float).tiny)
     assert_allclose((q1 @ z) @ z_dot, z @ q2 @ z, rtol=0, atol=1e-12 * scale / tau)
 
 
