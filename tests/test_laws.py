@@ -325,22 +325,21 @@ def test_the_sampled_region_of_attraction_is_the_continuous_sweeps_for_nni_and_t
     from nni_plant_sim.model import SmibParams
 
     plant, grid = SmibParams(), COMPARISON_GRID
-    alone = [sampled_basin(plant, Law(name, Params(battery_limit_pu=0.0)), grid, 10.0, 50.0).outcome
-             for name in LAW_NAMES]
-    assert all(np.array_equal(outcome, alone[0]) for outcome in alone)
+    basins = {(name, b): sampled_basin(plant, Law(name, Params(battery_limit_pu=b)), grid, 10.0, 50.0).outcome
+              for name in LAW_NAMES for b in (0.0, 0.3)}
+    alone = basins["nni", 0.0]
+    assert all(np.array_equal(basins[name, 0.0], alone) for name in LAW_NAMES)
     for b in (0.0, 0.3):
-        ctrl = Params(battery_limit_pu=b)
-        sampled = sampled_basin(plant, Law("nni", ctrl), grid, 10.0, 50.0).outcome
-        (continuous,) = sweep(plant, [ctrl], grid)
-        differ = (sampled == SLIPS) != (continuous.outcome == SLIPS)
+        (continuous,) = sweep(plant, [Params(battery_limit_pu=b)], grid)
+        differ = (basins["nni", b] == SLIPS) != (continuous.outcome == SLIPS)
         assert differ.sum() <= 0.01 * grid.n_angle * grid.n_speed, (b, differ.sum())
         assert not np.any(differ & ~boundary_cells(continuous.outcome)), b
     # At the equilibrium (the grid's centre cell) every law returns at b = 0.3; the battery widens every basin.
     centre = (grid.n_speed // 2, grid.n_angle // 2)
     for name in LAW_NAMES:
-        outcome = sampled_basin(plant, Law(name, Params(battery_limit_pu=0.3)), grid, 10.0, 50.0).outcome
+        outcome = basins[name, 0.3]
         assert outcome[centre] == RETURNS, name
-        assert np.count_nonzero(outcome == SLIPS) < np.count_nonzero(alone[0] == SLIPS), name
+        assert np.count_nonzero(outcome == SLIPS) < np.count_nonzero(alone == SLIPS), name
 
 
 def test_a_run_whose_angles_run_away_after_the_loss_says_diverged_not_a_number_of_degrees():

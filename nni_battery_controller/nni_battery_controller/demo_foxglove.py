@@ -15,7 +15,6 @@ is judged, its verdict goes to the bridge (a file it watches) and out on ``/nni/
 from __future__ import annotations
 
 import json
-import math
 import os
 import time
 from pathlib import Path
@@ -105,9 +104,7 @@ def stream_verdict(bridge, logs: Path, verdict: dict) -> None:
         return
     path = logs / VERDICT_FILE
     partial = path.with_suffix(".partial")
-    strict = {key: str(value) if isinstance(value, float) and not math.isfinite(value) else value
-              for key, value in verdict.items()}  # b = inf as the word "inf": a client gets strict JSON
-    partial.write_text(json.dumps(strict, allow_nan=False), encoding="utf-8")
+    partial.write_text(json.dumps(verdict), encoding="utf-8")  # b = inf: the bridge sends the word, as for the label
     os.replace(partial, path)  # whole or not at all: the bridge never reads half a verdict
     try:
         bridge.wait_for_line(VERDICT_PREFIX, VERDICT_WAIT_S)

@@ -28,8 +28,10 @@ from nni_battery_controller.verdicts import assess, number_or_dash, verdict_text
 
 #: MWh per pu s on a 100 MVA rating: 100 MW for one second is 100/3600 MWh.
 MWH_PER_PU_S_100MVA = 100.0 / 3600.0
-#: A SMIB row's region-of-attraction areas, rad * rad/s (:func:`.law_roa.basin_summary`).
-ROA_KEYS = ("roa_synchronism_area_rad2_per_s", "roa_returns_area_rad2_per_s")
+#: A SMIB row's region-of-attraction areas (rad * rad/s), from :meth:`.roa.Basin.summary`'s: in synchronism, and
+#: returned.
+ROA_KEYS = {"roa_synchronism_area_rad2_per_s": "synchronism_area_rad2_per_s",
+            "roa_returns_area_rad2_per_s": "returns_area_rad2_per_s"}
 
 
 def run_summary(traj, scenario) -> dict:
@@ -46,12 +48,17 @@ def run_summary(traj, scenario) -> dict:
             **({} if traj.charge_pu_s is None else {"battery_empty_at_s": traj.empty_at_s})}
 
 
+def basin_entries(basin) -> dict:
+    """A row's region-of-attraction entries of a :class:`.roa.Basin` (:func:`.law_roa.sampled_basin`'s)."""
+    summary = basin.summary()
+    return {key: summary[basin_key] for key, basin_key in ROA_KEYS.items()}
+
+
 def compare(laws_by_b, simulate_run, cct_of, roa_of=None) -> list[dict]:
     """Rows ``{law, b, run..., cct_s, cct_slips_s, roa_...}`` for ``laws_by_b`` ({b: [Law, ...]}).
 
     ``simulate_run(law)`` runs the scenario, ``cct_of(law)`` returns a :class:`.margins.ClearingTime`,
-    ``roa_of(law)`` the region-of-attraction areas (:func:`.law_roa.basin_summary`; None: not swept, the
-    areas None).
+    ``roa_of(law)`` the region-of-attraction areas (:func:`basin_entries`; None: not swept, the areas None).
     """
     rows = []
     for b, laws in laws_by_b.items():
@@ -128,8 +135,9 @@ def format_rows(rows) -> str:
         cct = f"{row['cct_s']:.3f}" if row["cct_slips_s"] is not None else f">={row['cct_s']:.3f}"
         empty = f" {number_or_dash(row['battery_empty_at_s'], '{:.3f}'):>12}" if empties else ""
         areas = " ".join(f"{number_or_dash(row[key], '{:.2f}'):>8}" for key in ROA_KEYS)
-        lines.append(f"{b:>7g} {row['law']:>16} {cct:>8} {areas} {number_or_dash(row['settling_time_s'], '{:.3f}'):>10} "
-                     f"{row['energy_pu_s']:>13.4f} {number_or_dash(row['time_saturated_s'], '{:.3f}'):>13}{empty}  {row['verdict']}")
+        settle, saturated = (number_or_dash(row[key], "{:.3f}") for key in ("settling_time_s", "time_saturated_s"))
+        lines.append(f"{b:>7g} {row['law']:>16} {cct:>8} {areas} {settle:>10} {row['energy_pu_s']:>13.4f} "
+                     f"{saturated:>13}{empty}  {row['verdict']}")
     return "\n".join(lines)
 
 
@@ -145,7 +153,8 @@ def comparison_figure(rows, title: str):
     finite = sorted({row["b"] for row in rows if row["b"] != "inf"})
     edge = (max(finite) * 1.25 if finite and max(finite) > 0 else 1.0)
     references = list(dict.fromkeys(row.get("reference") for row in rows))
-    swept = any(row.get(ROA_KEYS[0]) is not None for row in rows)
+    sync_key, back_key = ROA_KEYS
+    swept = any(row.get(sync_key) is not None for row in rows)
     fig, axes = plt.subplots(1, 2 if swept else 1, figsize=(12, 4.5) if swept else (7, 4.5), squeeze=False)
     ax = axes[0][0]
 
@@ -166,7 +175,7 @@ def comparison_figure(rows, title: str):
         roa = axes[0][1]
         for name in LAW_NAMES:
             mine = [row for row in rows if row["law"] == name]
-            for key, style, what in ((ROA_KEYS[0], "-", "in sync"), (ROA_KEYS[1], "--", "returned")):
+            for key, style, what in ((sync_key, "-", "in sync"), (back_key, "--", "returned")):
                 roa.plot([b_axis(row) for row in mine], [row[key] for row in mine], marker="o", linestyle=style,
                          color=f"C{LAW_NAMES.index(name)}", label=f"{name}, {what}")
         roa.set_ylabel("region of attraction (rad x rad/s)")

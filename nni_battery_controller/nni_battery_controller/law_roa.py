@@ -71,13 +71,6 @@ def sampled_basin(plant: SmibParams, law, grid: RoaGrid, horizon_s: float, rate_
                  time.perf_counter() - started)
 
 
-def basin_summary(basin: Basin) -> dict:
-    """The comparison's row entries of a basin: the areas (rad * rad/s) of return and of synchronism."""
-    summary = basin.summary()
-    return {"roa_returns_area_rad2_per_s": summary["returns_area_rad2_per_s"],
-            "roa_synchronism_area_rad2_per_s": summary["synchronism_area_rad2_per_s"]}
-
-
 def roa_description(grid: RoaGrid, horizon_s: float) -> dict:
     """What a comparison's JSON says of its sweep: the grid, the horizon, the step and the outcomes' meaning."""
     return {"angle_dev_rad": [grid.angle_min_rad, grid.angle_max_rad],

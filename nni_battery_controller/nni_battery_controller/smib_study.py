@@ -27,7 +27,13 @@ import sys
 import time
 
 from nni_battery_controller.figures import plot_runs, roa_figure, save_png
-from nni_battery_controller.law_comparison import MWH_PER_PU_S_100MVA, compare, comparison_figure, format_rows
+from nni_battery_controller.law_comparison import (
+    MWH_PER_PU_S_100MVA,
+    basin_entries,
+    compare,
+    comparison_figure,
+    format_rows,
+)
 from nni_battery_controller.law_tuning import BUDGET, format_results, tune
 from nni_battery_controller.laws import LAW_NAMES
 from nni_battery_controller.margins import (
@@ -46,7 +52,7 @@ from nni_battery_controller.options import (
     link_of,
     resolve_model,
 )
-from nni_battery_controller.law_roa import COMPARISON_GRID, basin_summary, roa_description, sampled_basin
+from nni_battery_controller.law_roa import COMPARISON_GRID, roa_description, sampled_basin
 from nni_battery_controller.roa import RETURNS, STEP_S as ROA_STEP_S, RoaGrid, report, sweep
 from nni_battery_controller.simulate import fastest_rate_per_s, simulate_continuous, simulate_sampled
 from nni_battery_controller.study_common import (
@@ -396,7 +402,7 @@ def run_compare_laws(args, model, plant: SmibParams) -> int:
               "(sync) and that settles (back)")
 
         def roa_of(law):
-            return basin_summary(sampled_basin(plant, law, grid, args.duration, rate))
+            return basin_entries(sampled_basin(plant, law, grid, args.duration, rate))
     rows = compare(laws_by_b, *law_runners(args, model, plant), roa_of)
     print(format_rows(rows))
     print(f"energy in MWh: pu s x {MWH_PER_PU_S_100MVA:.5f} per 100 MVA of rating; saturated: the output at +-b")

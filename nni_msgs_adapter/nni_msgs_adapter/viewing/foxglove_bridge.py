@@ -32,6 +32,7 @@ import functools
 import json
 import os
 import sys
+from pathlib import Path
 
 import foxglove
 from foxglove.websocket import ServerListener
@@ -88,18 +89,22 @@ def parameters() -> tuple[Spec, ...]:
     )
 
 
-def run_label(text: str) -> dict:
-    """The ``run_label`` parameter as a dict; ValueError (one line) if it is not a JSON object. An unlimited
-    battery (Python's ``Infinity``) becomes the word ``"inf"``: what a client gets is strict JSON."""
-    if not text:
-        return {}
+def json_object(text: str, what: str) -> dict:
+    """``text`` (the launcher's: the run label, the verdict) as a dict; ValueError (one line) naming ``what`` if it
+    is not a JSON object. An unlimited battery (Python's ``Infinity``) becomes the word ``"inf"``: what a client
+    gets is strict JSON."""
     try:
         value = json.loads(text, parse_constant={"Infinity": "inf", "-Infinity": "-inf", "NaN": "nan"}.get)
     except json.JSONDecodeError as exc:
-        raise ValueError(f"run_label must be a JSON object: {exc}") from None
+        raise ValueError(f"{what} must be a JSON object: {exc}") from None
     if not isinstance(value, dict):
-        raise ValueError("run_label must be a JSON object")
+        raise ValueError(f"{what} must be a JSON object")
     return value
+
+
+def run_label(text: str) -> dict:
+    """The ``run_label`` parameter as a dict (empty: none); ValueError (one line) if it is not a JSON object."""
+    return json_object(text, "run_label") if text else {}
 
 
 def json_channel(topic: str, name: str, schema: dict) -> foxglove.Channel:
@@ -168,9 +173,9 @@ class FoxgloveBridge(Node):
         if self._verdict_channel is None or not os.path.exists(self._verdict_file):
             return
         try:
-            verdict = json.loads(open(self._verdict_file, encoding="utf-8").read())
-            if not isinstance(verdict, dict) or not isinstance(verdict.get("verdict"), str):
-                raise ValueError("not a JSON object with a 'verdict' string")
+            verdict = json_object(Path(self._verdict_file).read_text(encoding="utf-8"), "the verdict")
+            if not isinstance(verdict.get("verdict"), str):
+                raise ValueError("the verdict has no 'verdict' string")
         except (OSError, ValueError) as exc:
             self.get_logger().error(f"verdict_file {self._verdict_file}: {exc}; no verdict streamed")
         else:
