@@ -253,12 +253,15 @@ def test_replay_republishes_the_recording_unchanged():
     # Original spacing divided by the rate, as the replay sent them (source timestamps: the
     # probe's own delays under load do not count). Idle, each plant state goes out within ~10 ms
     # of its slot; a loaded 2-core machine delays single timer callbacks by 0.1 s, so the test
-    # bounds the median deviation and the length of the whole playback.
+    # bounds the median deviation and the length of the whole playback. The deviation is taken
+    # about its median, not about the first state: on a clean clone the first publish once went
+    # out 66 ms late (a process's first message), which made every later one look early.
     states, records = received[contract.TOPIC_PLANT_STATE], expected["/" + contract.TOPIC_PLANT_STATE]
     arrival_s = np.array([t - states[0][0] for t, _ in states]) * 1e-9
     slot_s = np.array([r.log_time_ns - records[0].log_time_ns for r in records]) * 1e-9 / rate
-    assert np.median(np.abs(arrival_s - slot_s)) < 0.02
-    assert arrival_s[-1] == pytest.approx(slot_s[-1], rel=0.1)
+    lateness_s = arrival_s - slot_s
+    assert np.median(np.abs(lateness_s - np.median(lateness_s))) < 0.02
+    assert arrival_s[-1] - arrival_s[1] == pytest.approx(slot_s[-1] - slot_s[1], rel=0.1)
 
 
 #: The synthetic realtime recording below: plant states every 50 ms for 0.95 s, Omega latched at 0.
