@@ -1,5 +1,5 @@
 """A battery of finite energy (issue 32): its charge where the power flows, cut exactly where it runs empty or
-full, offline; ``nni-simulate --battery-energy-pu-s`` and what it refuses."""
+full, offline and in the plant's reporting core; ``nni-simulate --battery-energy-pu-s`` and what it refuses."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from nni_battery_controller.simulate import simulate_sampled
 from nni_plant_sim.battery import EnergyStore
 from nni_plant_sim.link import NO_LINK, DelayLine
 from nni_plant_sim.model import SmibParams
+from nni_plant_sim.reporting import CommandChannel, LockstepStepper, RealtimeReporter
 from nni_plant_sim.scenarios import TransferLimitFault
 
 pytestmark = pytest.mark.core
@@ -61,6 +62,47 @@ def test_a_small_battery_s_charge_follows_its_power_and_an_empty_one_delivers_no
     # Where no bound is met within a period, the charge moves by the held power times the period.
     assert np.allclose(charge[1:][inside], (charge[:-1] - power[:-1] * period)[inside], rtol=0, atol=1e-12)
     assert inside.sum() > 100
+
+
+# --- the plant's reporting core, which the plant nodes run ---------------------------------------
+
+MS = 1_000_000
+
+
+def record(t0_s, t1_s, state, powers):
+    """An integrator that records each piece it is asked for, with the powers over it."""
+    return [*state, (round(t0_s, 9), round(t1_s, 9), tuple(powers))]
+
+
+def paired_channel() -> CommandChannel:
+    channel = CommandChannel(1.0, 100 * MS)
+    channel.writers({b"controller-gid": "/controller"})
+    return channel
+
+
+def test_the_lockstep_core_cuts_the_period_where_the_battery_runs_empty_and_reports_the_charge():
+    # Half charge 0.005 pu s, asked for 0.5 pu from sample 0: empty at 0.01 s, nothing from there.
+    loop = LockstepStepper(record, [], [paired_channel()], 0.04, 0.02, 1.0, NO_LINK, EnergyStore([0.005]))
+    first = loop.start(0).measurement
+    assert first.powers == (0.0,) and first.charge_pu_s == (0.005,)
+    loop.sent(MS)
+    _, output = loop.command(0, 0, 0.5, 2 * MS)
+    assert loop.state == [(0.0, 0.01, (0.5,)), (0.01, 0.02, (0.0,))]
+    assert output.measurement.powers == (0.0,) and output.measurement.charge_pu_s == (0.0,)
+    assert loop.store.empty_at_s == [pytest.approx(0.01)]
+
+
+def test_the_realtime_core_s_redo_of_a_piece_integrated_ahead_takes_the_charge_back():
+    # The answer arrives at 5 ms: integrated ahead to 20 ms at 0.5 pu, the battery empty at 15 ms. A fault at
+    # 12 ms redoes the piece from 5 ms: the charge there is 0.005 - 0.5 x 0.007, not the empty battery's 0.
+    loop = RealtimeReporter(record, [], [paired_channel()], 0.0, 1_000 * MS, 20 * MS, 0.1, NO_LINK,
+                            EnergyStore([0.005]))
+    loop.start(1_000 * MS)
+    loop.command(0, 1_000 * MS, 0.5, 1_005 * MS)
+    assert loop.state[-2:] == [(0.005, 0.015, (0.5,)), (0.015, 0.02, (0.0,))] and loop.store.charge_pu_s == [0.0]
+    loop.interrupt(1_012 * MS)
+    assert loop.state[-1] == (0.005, 0.012, (0.5,))
+    assert loop.store.charge_pu_s == [pytest.approx(0.0015, abs=1e-15)] and loop.store.empty_at_s == [None]
 
 
 def test_compare_laws_says_which_laws_run_the_battery_empty(tmp_path):

@@ -8,6 +8,7 @@ controllers composed in one: the recording equals the offline sampled run of the
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -80,3 +81,36 @@ def test_the_demo_runs_the_law_asked_for_as_offline_and_the_recording_says_which
     assert info.returncode == 0, info.stderr
     expected = f"Law:               {name} ({gains_text(name)})" + (" at every generator" if case else "")
     assert expected in info.stdout.splitlines(), info.stdout
+
+
+def test_the_demos_battery_of_finite_energy_runs_empty_in_the_plant_as_offline(tmp_path):
+    """``nni-demo --battery-energy-pu-s``: the plant node's battery runs empty where the offline run's does, the
+    recording equals the offline run to 1e-12 (the angle, and the power the battery gave: none once empty), and
+    the demo's line, summary.json and ``nni-replay --info`` say when it ran empty."""
+    energy, duration = 0.05, 4.0
+    offline = simulate_sampled(SmibParams(), ControllerParams(battery_limit_pu=B), InitialAngle(), duration, RATE_HZ,
+                               battery_energy_pu_s=energy)
+    assert offline.empty_at_s is not None and np.any(offline.charge_pu_s == 0.0), "the case runs the battery empty"
+    unlimited = simulate_sampled(SmibParams(), ControllerParams(battery_limit_pu=B), InitialAngle(), duration, RATE_HZ)
+    assert np.max(np.abs(unlimited.delta_rad - offline.delta_rad)) > 0.1, "the energy limit changes the run"
+    domain = fresh_domain_id()
+    with busy_processes(2):
+        done = subprocess.run([str(BIN / "nni-demo"), "--b", str(B), "--battery-energy-pu-s", str(energy),
+                               "--duration", str(duration), "--mode", "lockstep", "--out", str(tmp_path),
+                               "--domain-id", str(domain)], env=ros_env(domain), capture_output=True, text=True,
+                              timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert f"battery empty at {offline.empty_at_s:.3f} s" in done.stdout, done.stdout
+    (recording,) = tmp_path.glob("*.mcap")
+    (run,) = generator_runs(read_recording(recording)).values()
+    np.testing.assert_allclose(run.delta_rad, offline.delta_rad, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(run.battery_power_pu[:-1], offline.battery_power_pu[:-1], rtol=0, atol=1e-12)
+    (summary,) = json.loads((tmp_path / "summary.json").read_text())["scenarios"]
+    assert summary["battery"]["energy_pu_s"] == energy
+    assert summary["battery"]["empty_at_s"] == pytest.approx(offline.empty_at_s, abs=1e-12)
+    assert summary["battery"]["charge_pu_s"] == pytest.approx(offline.charge_pu_s[-1], abs=1e-12)
+    info = subprocess.run([str(BIN / "nni-replay"), str(recording), "--info"], capture_output=True, text=True,
+                          timeout=120)
+    assert info.returncode == 0, info.stderr
+    assert any(line.startswith("  battery charge: ") and f"empty at {offline.empty_at_s:.3f} s" in line
+               for line in info.stdout.splitlines()), info.stdout

@@ -20,7 +20,7 @@ CONTROLLER, ROGUE = b"controller-gid", b"rogue-gid"
 
 def integrate(t0_s, t1_s, state, powers):
     """A state that is the history of the integration requests."""
-    return [*state, (round(t0_s, 9), round(t1_s, 9), powers)]
+    return [*state, (round(t0_s, 9), round(t1_s, 9), tuple(powers))]
 
 
 def paired_channel(rating_pu=1.0, deadline_ns=100 * MS) -> CommandChannel:

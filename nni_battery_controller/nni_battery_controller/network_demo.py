@@ -118,6 +118,9 @@ REFUSED = {
     **{flag: _SMIB_MODEL for flag in ("--H", "--D", "--P-M", "--P-max", "--f0")},
     **{flag: "it belongs to a scenario of the SMIB demo; a network runs --scenario bus_fault or line_trip"
        for flag in ("--delta0", "--speed0", "--fault-p-max")},
+    "--battery-energy-pu-s": "so far the SMIB demo's plant alone takes a battery of finite energy (the network "
+                             "plant node has the parameter, battery_energy_pu_s, but no offline network run to check "
+                             "it against)",
 }
 
 

@@ -26,6 +26,7 @@ from nni_battery_controller.laws import GAIN_PARAMETERS, GAINS, LAW_NAMES, Law, 
 from nni_battery_controller.network_sim import NetworkLaw
 from nni_msgs_adapter.ros.cli_support import CliError, finite_float, float_within, positive_float
 from nni_msgs_adapter.ros.defaults import controller_defaults, plant_defaults
+from nni_plant_sim.battery import battery_energy
 from nni_plant_sim.link import Link
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.scenarios import SCENARIO_FIELDS, SCENARIOS, from_values
@@ -363,6 +364,21 @@ def resolve_model(args: argparse.Namespace, prog: str) -> ModelValues:
 
 #: The link options of ``nni-simulate`` (SMIB and ``--case``); they model the plant nodes' link_* parameters.
 LINK_OPTIONS = ("link_delay", "link_jitter", "link_loss", "link_seed")
+
+
+def energy_option(text: str) -> float:
+    """argparse type of --battery-energy-pu-s: a number > 0 (``inf``: unlimited)."""
+    try:
+        return battery_energy(float(text))
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error) if "energy" in str(error) else f"expected a number, got {text!r}")
+
+
+def add_energy_option(parser, where: str) -> None:
+    """--battery-energy-pu-s (None on the parser: unlimited); ``where``: what takes it, for its help."""
+    parser.add_argument("--battery-energy-pu-s", type=energy_option, default=None, metavar="E",
+                        help="a battery of finite energy: E pu s (of the machine's rating) to deliver and as much room "
+                             f"to absorb, from half charge; empty it delivers nothing ({where}; default: unlimited)")
 
 
 def _seed(text: str) -> int:

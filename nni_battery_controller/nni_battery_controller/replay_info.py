@@ -132,6 +132,11 @@ def generator_lines(namespace: str, run: GeneratorRun) -> list[str]:
              f"  samples: {run.stamp_ns.size} plant states, {answered} answered by the controller",
              f"  battery limit b: {'not reported' if math.isnan(b) else f'{b:g} pu'}",
              f"  max|P_ST|: {float(np.max(np.abs(run.battery_power_pu))):.6g} pu (applied, recorded plant states)"]
+    if "battery_charge_pu_s" in run.diagnostics:  # a battery of finite energy, as the plant accounted for it
+        ends = [f"{word} at {float(run.diagnostics[f'battery_{word}_at_s']):.3f} s" for word in ("empty", "full")
+                if f"battery_{word}_at_s" in run.diagnostics]
+        lines.append(f"  battery charge: {float(run.diagnostics['battery_charge_pu_s']):.6g} pu s from empty at the "
+                     f"last status; {', '.join(ends) or 'never empty or full'}")
     counters = [f"{key} {run.diagnostics[key]}" for key in TRUST_COUNTERS if key in run.diagnostics]
     lines.append(f"  trust (plant diagnostics, last status): {', '.join(counters)}" if counters
                  else "  trust: no plant diagnostics recorded for this generator")

@@ -62,7 +62,7 @@ from nni_battery_controller.demo_viewer import (
     wait_for_interrupt,
 )
 from nni_battery_controller.figures import plot_runs
-from nni_battery_controller.options import PAPER_BATTERY_LIMITS, add_model_options, resolve_model
+from nni_battery_controller.options import PAPER_BATTERY_LIMITS, add_energy_option, add_model_options, resolve_model
 from nni_battery_controller.recorded_runs import sampled_trajectory
 from nni_battery_controller.simulate import Trajectory
 from nni_battery_controller.verdicts import assess, verdict_text
@@ -116,6 +116,7 @@ def build_parser() -> OneLineParser:
                         help=f"run a network of generators instead, one controller per generator ({', '.join(CASES)}; "
                              "its options: nni-demo --case CASE --help; default: none, the paper's SMIB)")
     add_model_options(parser)
+    add_energy_option(parser, "the plant's battery, in the plant node")
     return parser
 
 
@@ -147,7 +148,8 @@ def plant_parameters(args, b: float, with_bridge: bool) -> dict:
             "pmu_rate_hz": args.rate,
             "wait_for_subscribers": demo_c37118.plant_readers(args.measurements, 2, viewers),
             "wait_for_recorders": 1 + viewers,
-            "battery_rating_pu": b, "hold_until_released": True, **args.stream}
+            "battery_rating_pu": b, "hold_until_released": True, **args.stream,
+            **({} if args.battery_energy_pu_s is None else {"battery_energy_pu_s": args.battery_energy_pu_s})}
 
 
 def controller_parameters(args, b: float) -> dict:
@@ -255,6 +257,10 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
             "skipped_reports": int(summary.get("skipped_reports", 0)),
             "logger_counts": counts,
         })
+        if args.battery_energy_pu_s is not None:  # the plant's own account of its battery
+            outcome["battery"] = {"energy_pu_s": args.battery_energy_pu_s,
+                                  **{key: summary[f"battery_{key}"] for key in ("charge_pu_s", "empty_at_s", "full_at_s")
+                                     if f"battery_{key}" in summary}}
         if watch is not None:
             outcome["c37118"] = watch.summary()
         reasons = compromised_reasons(summary, run, b)
@@ -282,10 +288,18 @@ def run_all(args, env: dict, bridge=None) -> tuple[list[dict], list[Trajectory]]
                   f"max|d| {run['max_abs_angle_dev_rad']:8.4f} rad  max|P_ST| {run['max_abs_battery_power_pu']:.4f} pu"
                   f"  latency p50/p99/max {lat.get('p50', math.nan):.2f}/{lat.get('p99', math.nan):.2f}/"
                   f"{lat.get('max', math.nan):.2f} ms  dropped {run['dropped_samples']}  late {run['late_samples']}"
-                  f"  wall {run['wall_time_s']:.1f} s")
+                  f"  wall {run['wall_time_s']:.1f} s" + battery_text(run.get("battery")))
         if "c37118" in run:
             print(summary_line(run["c37118"]))
     return runs, trajectories
+
+
+def battery_text(battery: dict | None) -> str:
+    """``  battery empty at 1.234 s`` (or full, or neither) for a battery of finite energy; nothing without one."""
+    if battery is None:
+        return ""
+    ends = [f"{word} at {battery[f'{word}_at_s']:.3f} s" for word in ("empty", "full") if f"{word}_at_s" in battery]
+    return f"  battery {', '.join(ends) or 'never empty or full'}"
 
 
 def parse_arguments(parser: OneLineParser, argv=None) -> argparse.Namespace:

@@ -46,6 +46,7 @@ from nni_battery_controller.margins import (
 )
 from nni_battery_controller.options import (
     PAPER_BATTERY_LIMITS,
+    add_energy_option,
     add_link_options,
     add_model_options,
     given_link_options,
@@ -75,7 +76,6 @@ from nni_msgs_adapter.ros.cli_support import (
     write_json,
 )
 from nni_msgs_adapter.ros.defaults import plant_defaults
-from nni_plant_sim.battery import battery_energy
 from nni_plant_sim.link import NO_LINK
 from nni_plant_sim.model import SmibParams, restoring_power
 from nni_plant_sim.scenarios import TransferLimitFault
@@ -132,10 +132,7 @@ def build_parser() -> OneLineParser:
                         help=f"simulated seconds (default: {DEFAULT_DURATION_S:g}); --roa has its own horizon")
     parser.add_argument("--controller-rate", type=controller_rate, default=None,
                         help="'continuous' (default) or the sampled-data controller rate in Hz")
-    parser.add_argument("--battery-energy-pu-s", type=energy_option, default=None, metavar="E",
-                        help="a battery of finite energy: E pu s (of the machine's rating) to deliver and as much room "
-                             "to absorb, from half charge; empty it delivers nothing (sampled runs, --cct, "
-                             "--compare-laws; default: unlimited)")
+    add_energy_option(parser, "sampled runs, --cct, --compare-laws")
     parser.add_argument("--json", type=writable_output, help="write the per-scenario summary as JSON here (default: none)")
     parser.add_argument("--plot", type=writable_output, help="write the paper's two figures as one PNG here (default: none)")
     parser.add_argument("--cct", action="store_true",
@@ -355,14 +352,6 @@ def law_runners(args, model, plant: SmibParams):
     scenario, fault_p_max, energy = model.scenario(), model.plant["fault_p_max_pu"], energy_of(args)
     return (lambda law: (simulate(plant, law, scenario, args.duration, args.controller_rate, NO_LINK, energy), scenario),
             lambda law: smib_cct(plant, law, fault_p_max, args.duration, args.controller_rate, NO_LINK, energy))
-
-
-def energy_option(text: str) -> float:
-    """argparse type of --battery-energy-pu-s: a number > 0 (``inf``: unlimited)."""
-    try:
-        return battery_energy(float(text))
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error) if "energy" in str(error) else f"expected a number, got {text!r}")
 
 
 def energy_of(args) -> float:

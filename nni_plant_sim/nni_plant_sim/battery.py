@@ -33,6 +33,13 @@ class EnergyStore:
         self.empty_at_s: list[float | None] = [None] * len(self.energy_pu_s)
         self.full_at_s: list[float | None] = [None] * len(self.energy_pu_s)
 
+    def snapshot(self) -> tuple:
+        """What :meth:`restore` takes back: the charge, and when each ran empty and full."""
+        return list(self.charge_pu_s), list(self.empty_at_s), list(self.full_at_s)
+
+    def restore(self, snapshot) -> None:
+        self.charge_pu_s, self.empty_at_s, self.full_at_s = (list(part) for part in snapshot)
+
     def applied(self, powers) -> list[float]:
         """The powers the batteries give when asked for ``powers``: none from an empty one, none into a full one."""
         return [0.0 if (p > 0 and charge <= 0.0) or (p < 0 and charge >= 2 * energy) else p

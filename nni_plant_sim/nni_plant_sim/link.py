@@ -183,12 +183,16 @@ class DelayLine:
             self._on_effect(generator, power)
 
     def snapshot(self):
-        """What :meth:`restore` takes back (a realtime reporter's redo of a piece integrated ahead)."""
-        return list(self._pending), list(self.powers), list(self._in_force_k), list(self.superseded)
+        """What :meth:`restore` takes back (a realtime reporter's redo of a piece integrated ahead), the store's charge too."""
+        charge = None if self.store is None else self.store.snapshot()
+        return list(self._pending), list(self.powers), list(self._in_force_k), list(self.superseded), charge
 
     def restore(self, snapshot) -> None:
-        pending, powers, in_force_k, self.superseded = (list(part) for part in snapshot)
+        *parts, charge = snapshot
+        pending, powers, in_force_k, self.superseded = (list(part) for part in parts)
         self._pending, self._in_force_k = pending, in_force_k
+        if charge is not None:
+            self.store.restore(charge)
         for generator, power in enumerate(powers):
             self._put(generator, power)
 

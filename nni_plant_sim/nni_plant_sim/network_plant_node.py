@@ -72,7 +72,7 @@ class NetworkPlantNode(PlantNodeBase):
         """The scenario's initial state as one run of a batch (shape (2, N, 1)), as the offline simulation's."""
         return scenario.initial_state(self._plant)[:, :, None]
 
-    def _integrate(self, t0_s: float, t1_s: float, x, powers: tuple):
+    def _integrate(self, t0_s: float, t1_s: float, x, powers):
         """The network over one period, each battery's power (pu of its machine) held, on the system base."""
         battery = (np.array(powers) * self._scale)[:, None]
         return advance(t0_s, t1_s, x, battery, self._plant, self._scenario, self._values["integration_step_s"])

@@ -44,6 +44,9 @@ def run_parameters(defaults: dict) -> tuple[Spec, ...]:
         Spec("battery_rating_pu", defaults["battery_rating_pu"], "Battery inverter rating (at each generator, pu of its "
              "machine's rating): commands are clipped to +-rating, pu (.inf: unlimited; nni-demo and the launch files "
              "give b).", 0.0, math.inf),
+        Spec("battery_energy_pu_s", defaults["battery_energy_pu_s"], "Battery energy (at each generator): pu s of its "
+             "machine's rating it delivers from half charge, with as much room to absorb; an empty battery delivers "
+             "nothing, a full one absorbs nothing (.inf: unlimited).", 1e-9, math.inf),
         Spec("command_authentication", defaults["command_authentication"], "Which battery commands count: hmac (those "
              "sealed under the run's key, NNI_COMMAND_KEY_FILE; others are dropped and counted) or none (those of the "
              "one writer on battery/command, paired at the start; none while a second writer is there).",

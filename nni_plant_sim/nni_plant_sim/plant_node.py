@@ -50,7 +50,7 @@ class PlantNode(PlantNodeBase):
     def _state_of(self, scenario):
         return scenario.initial_state(self._plant)
 
-    def _integrate(self, t0_s: float, t1_s: float, x, powers: tuple):
+    def _integrate(self, t0_s: float, t1_s: float, x, powers):
         return advance(t0_s, t1_s, x, powers[0], self._plant, self._scenario, self._values["integration_step_s"])
 
     def _frames(self, sample) -> tuple:

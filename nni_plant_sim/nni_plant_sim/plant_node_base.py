@@ -26,7 +26,10 @@ Commands (``command_authentication``): ``hmac`` (the default) admits only
 those whose seal verifies under the run's key (``NNI_COMMAND_KEY_FILE``,
 :mod:`nni_msgs_adapter.ros.command_auth`; one key per generator's command
 topic); ``none`` pairs with the one writer on the topic, as before keys.
-``hold_until_released``: the run does not start before the process gets
+``battery_energy_pu_s`` (finite): every generator's battery has that much
+energy (:mod:`.battery`, in the reporting core's delay line): an empty one
+gives nothing, ``plant/state`` carries the power it gives, and its status the
+charge and when it ran empty or full. ``hold_until_released``: the run does not start before the process gets
 SIGUSR1 (the demo or the launch file sends it once every node's parameters,
 read back from the lines they print at start, are what it passed).
 
@@ -51,6 +54,7 @@ from std_srvs.srv import Trigger
 from nni_msgs_adapter.ros import command_auth, contract
 from nni_msgs_adapter.ros.loop_node import LoopNode, StampedPublisher
 from nni_msgs_adapter.ros.ros_params import locked_changes
+from nni_plant_sim.battery import EnergyStore
 from nni_plant_sim.plant_config import link_from
 from nni_plant_sim.pmu_stream import STREAM_PARAMETERS, SUMMARY_PREFIX_STREAM, PlantStream
 from nni_plant_sim.reporting import CommandChannel, LockstepStepper, PmuSensor, RealtimeReporter, SubscriberWait
@@ -179,11 +183,13 @@ class PlantNodeBase(LoopNode):
         # tick never comes before its instant and the two never drift apart (60 frames/s: 16,666,666 ns).
         self._t0_ns = self.now_ns() + (0 if self._lockstep else timer.time_until_next_call() - timer.timer_period_ns)
         state = self._state_of(self._before)
-        link = link_from(values)
+        link, energy = link_from(values), values["battery_energy_pu_s"]
+        store = None if math.isinf(energy) else EnergyStore([energy] * len(self.namespaces))
         self._loop = (LockstepStepper(self._integrate, state, self._channels, values["duration_s"],
-                                      1.0 / values["pmu_rate_hz"], values["lockstep_timeout_s"], link) if self._lockstep
+                                      1.0 / values["pmu_rate_hz"], values["lockstep_timeout_s"], link, store)
+                      if self._lockstep
                       else RealtimeReporter(self._integrate, state, self._channels, values["duration_s"],
-                                            self._t0_ns, timer.timer_period_ns, values["command_timeout_s"], link))
+                                            self._t0_ns, timer.timer_period_ns, values["command_timeout_s"], link, store))
         if values["fault_at_start"]:
             self._start_fault_now()
         self._publish(self._loop.start(self.now_ns()))
@@ -289,9 +295,23 @@ class PlantNodeBase(LoopNode):
             run.update(sim_time_s=self._loop.t_s, samples=self._loop.sample,
                        run_wall_s=((self._finished_ns or self.now_ns()) - self._t0_ns) * 1e-9)
         return [{**run, **label, "battery_power_pu": channel.power_pu, **channel.summary(),
-                 **(self._loop.link_summary(i) if self._loop is not None else {}),
+                 **(self._loop.link_summary(i) if self._loop is not None else {}), **self._charge_summary(i),
                  contract.RUN_ENDED: self._finished_ns is not None}
                 for i, (label, channel) in enumerate(zip(self._labels, self._channels))]
+
+    def _charge_summary(self, index: int) -> dict:
+        """Generator ``index``'s battery of finite energy: its charge, pu s from empty, the power it gives now (an
+        empty one gives none of what is in force), and when it ran empty or full (simulated s; absent until it
+        does); nothing for an unlimited one."""
+        store = None if self._loop is None else self._loop.store
+        if store is None:
+            return {}
+        values = {"battery_charge_pu_s": store.charge_pu_s[index],
+                  "battery_given_pu": store.applied(self._loop.powers)[index]}
+        for key, at in (("battery_empty_at_s", store.empty_at_s[index]), ("battery_full_at_s", store.full_at_s[index])):
+            if at is not None:
+                values[key] = at
+        return values
 
     def publish_diagnostics(self) -> list[dict]:
         """One status per generator (``plant``, namespaced by its hardware_id), all in one message; their values."""

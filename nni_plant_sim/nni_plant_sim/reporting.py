@@ -17,7 +17,7 @@ decide itself lives here, clock-free and unit-tested:
   per timeout.
 
 Both loops drive any plant given as ``integrate(t0_s, t1_s, state, powers) ->
-state`` (``powers``: a tuple, one battery power in pu per generator, in the
+state`` (``powers``: a sequence, one battery power in pu per generator, in the
 order of ``channels``) and serve one :class:`CommandChannel` per generator
 behind one reporting grid, so a plant of N generators reuses them unchanged.
 
@@ -27,7 +27,11 @@ realtime: the reporting grid's clock, or at its arrival if that is later), or
 is lost and the command in force stays; the physics is integrated piecewise
 between those instants (:class:`nni_plant_sim.link.DelayLine`), as the
 offline sampled simulations do. Without a link every answer takes effect at
-once and each period is one piece, as before the model existed.
+once and each period is one piece, as before the model existed. Both also
+take a :class:`nni_plant_sim.battery.EnergyStore` (default: none, no energy
+limit): the line cuts a piece where a battery runs empty or full, the physics
+gets the powers the batteries give, and each :class:`Report` carries them and
+the charge.
 """
 
 from __future__ import annotations
@@ -39,7 +43,8 @@ from typing import NamedTuple
 import numpy as np
 
 from nni_msgs_adapter.ros import command_auth
-from nni_plant_sim.link import NO_LINK, DelayLine, Link
+from nni_plant_sim.battery import EnergyStore
+from nni_plant_sim.link import NO_LINK, DelayLine, Link, integrate_through
 from nni_plant_sim.loop_stats import LoopStats, TimingDistribution
 
 #: A battery command beyond this is a fault, not a request to clip (a battery a
@@ -224,6 +229,7 @@ class Report(NamedTuple):
     t_s: float
     state: object
     powers: tuple
+    charge_pu_s: tuple | None = None  # each battery's charge, pu s from empty (None: no energy limit)
 
 
 class Output(NamedTuple):
@@ -240,7 +246,7 @@ class Output(NamedTuple):
 class _Loop:
     """The physics and the channels shared by both time modes."""
 
-    def __init__(self, integrate, state, channels, duration_s: float, link: Link):
+    def __init__(self, integrate, state, channels, duration_s: float, link: Link, store: EnergyStore | None = None):
         self._integrate = integrate
         self.state = state
         self.t_s = 0.0
@@ -249,7 +255,7 @@ class _Loop:
         self.sample = 0
         self.done = False
         self.link = link
-        self.line = DelayLine(link, self.powers, lambda index, power: self.channels[index].apply(power))
+        self.line = DelayLine(link, self.powers, lambda index, power: self.channels[index].apply(power), store)
 
     @property
     def powers(self) -> tuple:
@@ -257,8 +263,7 @@ class _Loop:
 
     def advance_to(self, t_s: float) -> None:
         if t_s > self.t_s:
-            for start, stop in self.line.pieces(self.t_s, t_s):
-                self.state = self._integrate(start, stop, self.state, self.powers)
+            self.state = integrate_through(self.line, self._integrate, self.t_s, t_s, self.state)
             self.t_s = t_s
 
     def replace_state(self, state) -> None:
@@ -271,8 +276,17 @@ class _Loop:
             return {}
         return {"link_lost": self.line.lost[index], "link_superseded": self.line.superseded[index]}
 
+    @property
+    def store(self) -> EnergyStore | None:
+        """The batteries' charge, None without an energy limit."""
+        return self.line.store
+
     def report(self, stamp_ns: int) -> Report:
-        return Report(stamp_ns, self.t_s, self.state, self.powers)
+        """The instant: the powers as the batteries give them (an empty one gives none), and their charge."""
+        store = self.line.store
+        if store is None:
+            return Report(stamp_ns, self.t_s, self.state, self.powers)
+        return Report(stamp_ns, self.t_s, self.state, tuple(store.applied(self.powers)), tuple(store.charge_pu_s))
 
 
 class RealtimeReporter(_Loop):
@@ -296,8 +310,8 @@ class RealtimeReporter(_Loop):
     """
 
     def __init__(self, integrate, state, channels, duration_s: float, t0_ns: int, period_ns: int,
-                 command_timeout_s: float, link: Link = NO_LINK):
-        super().__init__(integrate, state, channels, duration_s, link)
+                 command_timeout_s: float, link: Link = NO_LINK, store: EnergyStore | None = None):
+        super().__init__(integrate, state, channels, duration_s, link, store)
         self.t0_ns = t0_ns
         self.period_ns = period_ns
         self.period_s = period_ns * 1e-9
@@ -421,8 +435,8 @@ class LockstepStepper(_Loop):
     """
 
     def __init__(self, integrate, state, channels, duration_s: float, period_s: float, timeout_s: float,
-                 link: Link = NO_LINK):
-        super().__init__(integrate, state, channels, duration_s, link)
+                 link: Link = NO_LINK, store: EnergyStore | None = None):
+        super().__init__(integrate, state, channels, duration_s, link, store)
         self.period_s = period_s
         self.timeout_s = timeout_s
         # The generators' measurements go out together: one turnaround a sample, the one distribution every
