@@ -141,7 +141,8 @@ def run_benchmarks(env: dict, log_root: Path, only, quick: bool, rates, domain_i
     if "screening-large" in only:
         results["screening-large"] = bench_large_screens(quick)
     if "foxglove" in only:
-        results["foxglove"] = bench_foxglove(env, log_root, 10.0 if quick else 30.0, 3 if quick else 5)
+        results["foxglove"] = bench_foxglove(env, log_root, 10.0 if quick else 30.0, 3 if quick else 5,
+                                             5.0 if quick else 10.0)
     if "law-comparison" in only:
         results["law-comparison"] = bench_law_comparison(quick)
     return results

@@ -29,11 +29,13 @@ def _free_port() -> int:
         return sock.getsockname()[1]
 
 
-def bench_foxglove(env, log_root, sim_s: float, rounds: int) -> dict:
-    """``rounds`` alternating rounds of the three :data:`ARMS`; throughput and latency per run, ratios per round."""
+def bench_foxglove(env, log_root, sim_s: float, rounds: int, realtime_s: float) -> dict:
+    """``rounds`` alternating rounds of the three :data:`ARMS`; throughput and latency per run, ratios per round.
+    Then as many rounds in realtime (``realtime_s`` each), where what counts is the loop's latency and its misses."""
     progress(f"foxglove: {rounds} x (lockstep alone, streamed to a reading client, to a never-reading client), "
-             f"{sim_s:g} simulated s at {RATE_HZ:g}/s")
+             f"{sim_s:g} simulated s at {RATE_HZ:g}/s; then {rounds} x the same in realtime, {realtime_s:g} s each")
     runs = {arm: [] for arm in ARMS}
+    realtime = {arm: [] for arm in ARMS}
     for index in range(1, rounds + 1):
         for arm, client in ARMS.items():
             summary = closed_loop(env, log_root / f"foxglove_{arm}_{index}", "lockstep", RATE_HZ, sim_s,
@@ -41,6 +43,15 @@ def bench_foxglove(env, log_root, sim_s: float, rounds: int) -> dict:
             runs[arm].append({"throughput": float(summary["sim_time_s"]) / float(summary["run_wall_s"]),
                               "latency_p50_ms": float(summary["latency_p50_ms"]),
                               "misses": int(summary["deadline_misses"])})
+    for index in range(1, rounds + 1):
+        for arm, client in ARMS.items():
+            summary = closed_loop(env, log_root / f"foxglove_realtime_{arm}_{index}", "realtime", RATE_HZ,
+                                  realtime_s, foxglove_port=_free_port() if client else None,
+                                  foxglove_client=client or "")
+            realtime[arm].append({key: float(summary[f"latency_{key}_ms"]) for key in ("p50", "p99", "max")}
+                                 | {"misses": int(summary["deadline_misses"]), "late": int(summary.get("late", 0)),
+                                    "skipped": int(summary.get("skipped_reports", 0)),
+                                    "samples": int(summary["samples"])})
     throughput = {arm: [run["throughput"] for run in values] for arm, values in runs.items()}
     ratios = {"reading": [a / b for a, b in zip(throughput["alone"], throughput["reading"])],
               "stalled": [a / b for a, b in zip(throughput["reading"], throughput["stalled"])]}
@@ -50,7 +61,13 @@ def bench_foxglove(env, log_root, sim_s: float, rounds: int) -> dict:
             "throughput": {arm: float(np.median(values)) for arm, values in throughput.items()},
             "latency_p50_ms": {arm: float(np.median([r["latency_p50_ms"] for r in values]))
                                for arm, values in runs.items()},
-            "misses": sum(run["misses"] for values in runs.values() for run in values)}
+            "misses": sum(run["misses"] for values in runs.values() for run in values),
+            "realtime_s": realtime_s,
+            "realtime": {arm: {key: (float(np.median([r[key] for r in values])) if key in ("p50", "p99", "max")
+                                     else sum(r[key] for r in values))
+                               for key in ("p50", "p99", "max", "misses", "late", "skipped", "samples")}
+                         for arm, values in realtime.items()},
+            "realtime_runs": realtime}
 
 
 def foxglove_section(result: dict) -> list[str]:
@@ -79,4 +96,27 @@ def foxglove_section(result: dict) -> list[str]:
               + ("(within the noise)." if ratio["reading"] <= spread else
                  "(**beyond the noise**: a third busy process on two cores, checking every seal and forwarding "
                  "every message, takes CPU from the lockstep loop; in realtime the loop waits for the clock)."), ""]
+    if "realtime" in result:
+        lines += realtime_lines(result)
+    return lines
+
+
+def realtime_lines(result: dict) -> list[str]:
+    """The realtime rounds: each arm's measurement -> command latency (median over the rounds of each run's
+    quantile) and the samples it missed, late or skipped (summed over the rounds)."""
+    rows = [("the loop alone", "alone"), ("streaming to a client that reads", "reading"),
+            ("streaming, beside a client that never reads", "stalled")]
+    lines = [f"The same three in realtime ({result['rounds']} alternating rounds of {result['realtime_s']:g} s at "
+             f"{result['rate_hz']:g}/s), where the loop waits for the clock and what streaming could cost is "
+             "latency and missed samples:", "",
+             "| run | latency p50 / p99 / max (ms, median of the rounds) | samples | deadline misses | late | "
+             "skipped reports |", "|---|---|---:|---:|---:|---:|"]
+    for text, arm in rows:
+        r = result["realtime"][arm]
+        lines.append(f"| {text} | {r['p50']:.3f} / {r['p99']:.3f} / {r['max']:.3f} | {r['samples']} | "
+                     f"{r['misses']} | {r['late']} | {r['skipped']} |")
+    alone, reading = result["realtime"]["alone"], result["realtime"]["reading"]
+    lines += ["", f"Streaming adds {reading['p50'] - alone['p50']:+.3f} ms to the median latency and "
+              f"{reading['p99'] - alone['p99']:+.3f} ms to its 99th percentile, against a {1e3 / result['rate_hz']:g} ms "
+              "period.", ""]
     return lines
