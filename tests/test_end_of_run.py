@@ -14,6 +14,7 @@ import time
 
 import pytest
 
+from nni_battery_controller.demo_common import plant_summary
 from nni_msgs_adapter.ros import contract
 from rosproc import Probe, fresh_domain_id, node_processes, wait_until
 
@@ -54,10 +55,12 @@ def test_a_run_that_reaches_its_duration_ends_at_info_with_no_zero_command(tmp_p
     commands = stamps_and_powers(probe.take(contract.TOPIC_BATTERY_COMMAND))
     if mode == "lockstep":
         assert len(measurements) == 100, "2 s at 50/s"
-    else:  # a loaded machine makes the realtime plant skip reporting instants (96 of 100 once, in a clean-clone suite)
+    else:  # a loaded machine makes the realtime plant skip reporting instants (88 of 100 once, in a clean-clone
+        # suite): every instant is either measured or counted skipped by the plant
         steps = {later - earlier for earlier, later in zip(measurements, measurements[1:])}
-        assert 90 <= len(measurements) <= 100 and all(step > 0 and step % 20_000_000 == 0 for step in steps), \
-            "2 s at 50/s, on the period's grid"
+        skipped = int(plant_summary(plant.output())["skipped_reports"])
+        assert len(measurements) + skipped == 100 and len(measurements) >= 50, (len(measurements), skipped)
+        assert all(step > 0 and step % 20_000_000 == 0 for step in steps), "2 s at 50/s, on the period's grid"
     # Realtime, a loaded machine can silence the loop mid-run for the watchdog's 5 periods (the plant skipping
     # instants, or the controller taking a measurement late: 11 in 40 runs beside a loaded worker); a stand-down
     # there, before the last measurement, is the watchdog's right answer. The end is the test: none after it.
