@@ -16,8 +16,9 @@ from nni_battery_controller.simulate import simulate_sampled
 from nni_plant_sim.battery import EnergyStore
 from nni_plant_sim.link import NO_LINK, DelayLine
 from nni_plant_sim.model import SmibParams
-from nni_plant_sim.reporting import CommandChannel, LockstepStepper, RealtimeReporter
+from nni_plant_sim.reporting import LockstepStepper, RealtimeReporter
 from nni_plant_sim.scenarios import TransferLimitFault
+from test_link import MS, integrate, paired_channel  # the reporting core's recording integrator and channel
 
 pytestmark = pytest.mark.core
 SIMULATE = [sys.executable, "-m", "nni_battery_controller.simulate_command"]
@@ -66,36 +67,22 @@ def test_a_small_battery_s_charge_follows_its_power_and_an_empty_one_delivers_no
 
 # --- the plant's reporting core, which the plant nodes run ---------------------------------------
 
-MS = 1_000_000
-
-
-def record(t0_s, t1_s, state, powers):
-    """An integrator that records each piece it is asked for, with the powers over it."""
-    return [*state, (round(t0_s, 9), round(t1_s, 9), tuple(powers))]
-
-
-def paired_channel() -> CommandChannel:
-    channel = CommandChannel(1.0, 100 * MS)
-    channel.writers({b"controller-gid": "/controller"})
-    return channel
-
-
 def test_the_lockstep_core_cuts_the_period_where_the_battery_runs_empty_and_reports_the_charge():
     # Half charge 0.005 pu s, asked for 0.5 pu from sample 0: empty at 0.01 s, nothing from there.
-    loop = LockstepStepper(record, [], [paired_channel()], 0.04, 0.02, 1.0, NO_LINK, EnergyStore([0.005]))
+    loop = LockstepStepper(integrate, [], [paired_channel()], 0.04, 0.02, 1.0, NO_LINK, EnergyStore([0.005]))
     first = loop.start(0).measurement
-    assert first.powers == (0.0,) and first.charge_pu_s == (0.005,)
+    assert first.powers == (0.0,) and loop.store.charge_pu_s == [0.005]
     loop.sent(MS)
     _, output = loop.command(0, 0, 0.5, 2 * MS)
     assert loop.state == [(0.0, 0.01, (0.5,)), (0.01, 0.02, (0.0,))]
-    assert output.measurement.powers == (0.0,) and output.measurement.charge_pu_s == (0.0,)
+    assert output.measurement.powers == (0.0,) and loop.store.charge_pu_s == [0.0]
     assert loop.store.empty_at_s == [pytest.approx(0.01)]
 
 
 def test_the_realtime_core_s_redo_of_a_piece_integrated_ahead_takes_the_charge_back():
     # The answer arrives at 5 ms: integrated ahead to 20 ms at 0.5 pu, the battery empty at 15 ms. A fault at
     # 12 ms redoes the piece from 5 ms: the charge there is 0.005 - 0.5 x 0.007, not the empty battery's 0.
-    loop = RealtimeReporter(record, [], [paired_channel()], 0.0, 1_000 * MS, 20 * MS, 0.1, NO_LINK,
+    loop = RealtimeReporter(integrate, [], [paired_channel()], 0.0, 1_000 * MS, 20 * MS, 0.1, NO_LINK,
                             EnergyStore([0.005]))
     loop.start(1_000 * MS)
     loop.command(0, 1_000 * MS, 0.5, 1_005 * MS)

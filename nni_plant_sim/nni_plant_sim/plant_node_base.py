@@ -307,7 +307,7 @@ class PlantNodeBase(LoopNode):
         if store is None:
             return {}
         values = {"battery_charge_pu_s": store.charge_pu_s[index],
-                  "battery_given_pu": store.applied(self._loop.powers)[index]}
+                  "battery_given_pu": self._loop.line.applied_powers()[index]}
         for key, at in (("battery_empty_at_s", store.empty_at_s[index]), ("battery_full_at_s", store.full_at_s[index])):
             if at is not None:
                 values[key] = at

@@ -30,8 +30,8 @@ offline sampled simulations do. Without a link every answer takes effect at
 once and each period is one piece, as before the model existed. Both also
 take a :class:`nni_plant_sim.battery.EnergyStore` (default: none, no energy
 limit): the line cuts a piece where a battery runs empty or full, the physics
-gets the powers the batteries give, and each :class:`Report` carries them and
-the charge.
+gets the powers the batteries give, and each :class:`Report` carries them
+(the charge: :attr:`_Loop.store`).
 """
 
 from __future__ import annotations
@@ -229,7 +229,6 @@ class Report(NamedTuple):
     t_s: float
     state: object
     powers: tuple
-    charge_pu_s: tuple | None = None  # each battery's charge, pu s from empty (None: no energy limit)
 
 
 class Output(NamedTuple):
@@ -282,11 +281,10 @@ class _Loop:
         return self.line.store
 
     def report(self, stamp_ns: int) -> Report:
-        """The instant: the powers as the batteries give them (an empty one gives none), and their charge."""
-        store = self.line.store
-        if store is None:
+        """The instant, with the powers as the batteries give them (an empty one gives none)."""
+        if self.line.store is None:
             return Report(stamp_ns, self.t_s, self.state, self.powers)
-        return Report(stamp_ns, self.t_s, self.state, tuple(store.applied(self.powers)), tuple(store.charge_pu_s))
+        return Report(stamp_ns, self.t_s, self.state, tuple(self.line.applied_powers()))
 
 
 class RealtimeReporter(_Loop):
