@@ -8,7 +8,7 @@ subscribed to every ``pmu`` and controller topic, and the plant counts it among 
 client connected from the start sees every sample. The server is the same address run after run (a client
 reconnects when a run ends: Foxglove does so by itself). A lockstep run is over in a fraction of a second, before
 a client that reconnects can subscribe: with ``--foxglove-wait`` each run starts only once a client has subscribed
-to one of its channels (the bridge logs each subscription), and waits for it as long as it takes. Once the run
+to one of its loop channels (the bridge logs each subscription), and waits for it as long as it takes. Once the run
 is judged, its verdict goes to the bridge (a file it watches) and out on ``/nni/verdict`` before the bridge stops.
 """
 
@@ -79,8 +79,8 @@ def start_bridge(procs, address: str | None, env: dict, label: dict, logs: Path)
 def wait_streaming(bridge, writers: dict, logs: Path, index: int, hold: bool) -> None:
     """Wait until ``bridge`` (None: nothing to wait for) has matched the loop's ``writers`` (as the logger), print
     its URL at the first run (``index`` 1), and with ``hold`` (``--foxglove-wait``) wait until a client has
-    subscribed to one of the run's channels: every channel is offered by then, so a client that subscribes to
-    all it wants at once (Foxglove does) sees the run from its first sample."""
+    subscribed to one of the loop's channels (:func:`subscribed_to_loop`): every channel is offered by then, so a
+    client that subscribes to all it wants at once (Foxglove does) sees the run from its first sample."""
     if bridge is None:
         return
     wait_for_recorder(bridge, writers, logs, "the Foxglove bridge")
@@ -90,11 +90,20 @@ def wait_streaming(bridge, writers: dict, logs: Path, index: int, hold: bool) ->
     if not hold:
         return
     print(f"  run {index} waits for a Foxglove client at {url} to subscribe", flush=True)
-    while SUBSCRIBED_PREFIX not in bridge.output():
+    while not subscribed_to_loop(bridge.output(), writers):
         if bridge.poll() is not None:
             raise CliError(f"the Foxglove bridge exited while run {index} waited for a client: {bridge.last_line()} "
                            f"(logs in {logs})")
         time.sleep(0.05)
+
+
+def subscribed_to_loop(output: str, writers: dict) -> bool:
+    """Whether the bridge's ``output`` logs a client's subscription to one of the loop's ``writers``' topics. The
+    bridge's own channels do not count: a client that connects before the loop's channels exist subscribes to
+    /nni/run at once and to the rest only as they are offered (CI once saw a lockstep run released by that first
+    subscription end before the client had subscribed to /gen1/battery/command)."""
+    return any(line.split(SUBSCRIBED_PREFIX, 1)[1].strip() in writers
+               for line in output.splitlines() if SUBSCRIBED_PREFIX in line)
 
 
 def stream_verdict(bridge, logs: Path, verdict: dict) -> None:
