@@ -17,7 +17,7 @@ import pytest
 #: the one ``smoke`` test). tests/test_markers.py checks that none of them starts a node or imports rclpy.
 CORE_TEST_MODULES = frozenset({
     "test_bench_report", "test_c37118_client", "test_c37118_feed", "test_c37118_frames", "test_c37118_server",
-    "test_c37118_stream", "test_closed_loop", "test_laws", "test_controller_core", "test_controller_law", "test_import_graph",
+    "test_c37118_stream", "test_clock_ticks", "test_closed_loop", "test_laws", "test_controller_core", "test_controller_law", "test_import_graph",
     "test_input_gate", "test_link", "test_loop_stats", "test_markers", "test_network", "test_network_andes",
     "test_network_law", "test_plant_model", "test_reporting", "test_screening_core", "test_simulation",
     "test_synthetic_case",

@@ -9,7 +9,8 @@ sends at once:
   negated, carrying the real message's seal (which then does not verify);
 * **one-period-ahead injection**: one mirrored copy stamped one period later, unsealed;
 * **replay**: the real message's bytes sent again as they are, and those of the measurement five before;
-* **forged /clock**: a tick 100 s ahead of the measurement (it is a /clock writer from the start);
+* **forged /clock**: a tick 100 s ahead of the measurement, one at its stamp and one five periods before (it is a
+  /clock writer from the start);
 * **forged run_ended**: every tenth measurement, a plant status under ``--status`` saying the run has ended.
 
 And **flood**: each of its own fakes that comes back to it makes one more, up to ``--flood`` in all. At SIGINT or
@@ -82,8 +83,9 @@ def main() -> int:
                 sent["replays"] += 1
             sent["replays"] += 1
             captured.append(data)
-            clock.publish(Clock(clock=contract.time_from_ns(stamp_ns + 100 * 10**9)))
-            sent["clock"] += 1
+            for tick_ns in (stamp_ns + 100 * 10**9, stamp_ns, stamp_ns - 5 * period_ns):
+                clock.publish(Clock(clock=contract.time_from_ns(tick_ns)))
+            sent["clock"] += 3
             if sent["real_seen"] % 10 == 1:
                 for hardware_id in args.status:
                     diagnostics.publish(contract.diagnostics_message(

@@ -81,7 +81,9 @@ def assert_flagged(demo, counts: dict, reasons: dict, measurements_attacked: boo
 
 def assert_recording_holds_only_the_loops(path: str, pmu_topics: list[str], measurements: int | None = None):
     """One recorded measurement per plant step (``measurements`` when given, else one fewer than the plant's
-    sealed states), no stamp twice, the rogue's apart and counted by ``nni-replay --info``."""
+    sealed states), no stamp twice, the rogue's apart and counted by ``nni-replay --info``. /clock: in lockstep
+    (``measurements`` given) one tick per measurement, at its stamp; in realtime none (the plant sends none); the
+    rogue's ticks apart."""
     recording = read_recording(path)
     stamps: dict[str, list] = {}
     for record in recording.messages:
@@ -94,12 +96,16 @@ def assert_recording_holds_only_the_loops(path: str, pmu_topics: list[str], meas
             len(stamps[topic.rsplit("/", 1)[0] + "/" + contract.TOPIC_PLANT_STATE]) - 1
         assert len(stamps[topic]) == expected, (topic, len(stamps[topic]), expected)
         assert len(set(stamps[topic])) == expected, f"{topic}: a stamp recorded twice"
+    ticks = [contract.clock_from_bytes(record.cdr_bytes) for record in recording.messages
+             if record.topic == contract.TOPIC_CLOCK]
+    assert sorted(ticks) == (sorted(stamps[pmu_topics[0]]) if measurements is not None else []), \
+        (len(ticks), ticks[:5])
     foreign = foreign_counts(recording)
-    assert all(foreign.get(topic, 0) > 0 for topic in pmu_topics), foreign
+    assert all(foreign.get(topic, 0) > 0 for topic in [*pmu_topics, contract.TOPIC_CLOCK]), foreign
     info = subprocess.run([str(BIN / "nni-replay"), path, "--info"], capture_output=True, text=True, timeout=120)
     assert info.returncode == 0, info.stderr
     (line,) = [line for line in info.stdout.splitlines() if line.startswith("Foreign messages:")]
-    for topic in pmu_topics:
+    for topic in [*pmu_topics, contract.TOPIC_CLOCK]:
         assert f"{topic} {foreign[topic]}" in line and FOREIGN_PREFIX in line, line
     return recording
 

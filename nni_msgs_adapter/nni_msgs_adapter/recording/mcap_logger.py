@@ -22,9 +22,13 @@ checks the seal of every message on a sealed topic (:data:`contract.SEALS`: meas
 true and controller states) as its readers do, under that topic's key and in sequence; a message
 whose seal does not verify (a rogue's, or a captured one sent again) is written apart, on
 :data:`~nni_msgs_adapter.recording.runs.FOREIGN_PREFIX` and its topic (``/nni_foreign/pmu``), which
-no reader takes for the loop's, and counted (``foreign`` in the counts line). ``/clock`` and
-``/diagnostics`` cannot carry a seal in their types and are recorded as they come (replay reads no
-time from ``/clock``). Without a key everything is recorded as it comes.
+no reader takes for the loop's, and counted (``foreign`` in the counts line). ``/clock`` cannot
+carry a seal in its type: a tick is recorded on ``/clock`` once a sealed measurement of the same stamp was (the
+plant sends one tick per measurement, after it), once per stamp, and apart otherwise (every tick, when the
+run's metadata says ``"mode": "realtime"``: the plant sends none then)
+(:class:`~nni_msgs_adapter.recording.runs.ClockTicks`; a tick waits for its measurement, so it may be written a
+little after messages received later, with its own receive time). ``/diagnostics`` has no seal and is recorded as
+it comes. Without a key everything is recorded as it comes.
 
 ``run_metadata`` (a JSON object, e.g. what ``nni-demo`` ran) is written at start as the MCAP
 metadata record ``nni_run``, each top-level key holding its value's JSON text. At the end the
@@ -57,7 +61,8 @@ from nni_msgs_adapter.recording.mcap_io import (
     OfferedQos, RecordingError, Ros2McapWriter, WriteFailure, qos_profiles_yaml, read_recording,
 )
 from nni_msgs_adapter.ros.node_main import run_node
-from nni_msgs_adapter.recording.runs import FOREIGN_PREFIX, RUN_METADATA_NAME, WriterMatches, new_loop_topics
+from nni_msgs_adapter.recording.runs import (FOREIGN_PREFIX, RUN_METADATA_NAME, ClockTicks, WriterMatches,
+                                             new_loop_topics)
 from nni_msgs_adapter.ros.ros_params import Spec, declared_values
 
 @functools.cache
@@ -140,8 +145,13 @@ class McapLogger(Node):
         self._recorded: dict[str, object] = {}
         self._matches = WriterMatches()
         self._key = command_auth.key_from_environment()
-        #: topic -> messages written apart as not the loop's (their seals did not verify).
+        #: topic -> messages written apart as not the loop's (their seals did not verify; /clock: no sealed
+        #: measurement had the tick's stamp, :class:`~nni_msgs_adapter.recording.runs.ClockTicks`).
         self.foreign: dict[str, int] = {}
+        # A realtime run's plant sends no tick (the demos say the mode in the run's metadata): every one is foreign.
+        realtime = metadata is not None and metadata.get("mode") == json.dumps("realtime")
+        self._ticks = ClockTicks(plant_ticks=not realtime) if self._key is not None else None
+        self._put_tick = None  # the /clock channel's writer, once it records
         self._scan_graph()
         self.create_timer(values["discovery_period_s"], self._scan_graph)
         self.get_logger().info(f"recording to {path}")
@@ -196,17 +206,35 @@ class McapLogger(Node):
         clock = self.get_clock()
         writer = self._writer
         check = contract.SealCheck(self._key, topic, name)
-        foreign = []  # the channel of the messages that do not verify, once one came
+        foreign = []  # the channel of the messages that are not the loop's, once one came
 
-        def channel_of(data: bytes) -> int:
-            if check.loops(data):
-                return channel
+        def apart() -> int:
             if not foreign:
                 foreign.append(writer.add_channel(FOREIGN_PREFIX + topic, contract.TOPICS[name][0], qos_yaml))
-                self.get_logger().error(f"a message on {topic} is not sealed by this run's nodes: recorded apart on "
-                                        f"{FOREIGN_PREFIX + topic}")
+                self.get_logger().error(f"a message on {topic} is not the loop's (not sealed by this run's nodes"
+                                        f"{'' if name != contract.TOPIC_CLOCK else ', or no sealed measurement has its stamp'}"
+                                        f"): recorded apart on {FOREIGN_PREFIX + topic}")
             self.foreign[topic] = self.foreign.get(topic, 0) + 1
             return foreign[0]
+
+        def put(message: tuple, loop: bool) -> None:
+            received_ns, data, message_info = message
+            writer.write(channel if loop else apart(), data, received_ns, message_info["source_timestamp"])
+
+        if name == contract.TOPIC_CLOCK and self._ticks is not None:
+            self._put_tick = put
+
+        def record(message: tuple) -> None:
+            data = message[1]
+            if name == contract.TOPIC_CLOCK and self._ticks is not None:
+                decided = self._ticks.tick(header_stamp_ns(data), message)
+            else:
+                loop = check.loops(data)
+                put(message, loop)
+                decided = self._ticks.measured(header_stamp_ns(data)) \
+                    if loop and name == contract.TOPIC_PMU and self._ticks is not None else ()
+            for tick, loop in decided:
+                self._put_tick(tick, loop)
 
         def write(cdr: bytes, info: dict) -> None:
             subscription = self._recorded[topic]
@@ -217,12 +245,11 @@ class McapLogger(Node):
                     if message is None:
                         break
                     taken.append((clock.now().nanoseconds, *message))
-            for received_ns, data, message_info in taken:
+            for message in taken:
                 if writer.failure is not None:
                     return  # reported once, at the failure; the node is stopping
                 try:
-                    writer.write(channel_of(data), data, received_ns,
-                                 message_info["source_timestamp"])
+                    record(message)
                 except WriteFailure:
                     return  # on_failure has reported it
 
@@ -238,6 +265,12 @@ class McapLogger(Node):
 
     def close(self) -> None:
         """Finish the file (summary, indexes) and print the per-topic counts; after a failure only close it."""
+        if self._ticks is not None and self._put_tick is not None and self.failure is None:
+            try:
+                for tick, loop in self._ticks.rest():
+                    self._put_tick(tick, loop)
+            except WriteFailure:
+                pass  # on_failure has reported it
         self._writer.close()
         if self.failure is None:
             counts = {topic: n for topic, n in self._writer.counts.items() if not topic.startswith(FOREIGN_PREFIX + "/")}

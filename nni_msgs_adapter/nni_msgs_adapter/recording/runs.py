@@ -16,6 +16,8 @@ made before it existed have none; what only needs the states reads them all the 
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import json
 import math
 import os
@@ -42,6 +44,68 @@ _RELATIVE_TOPICS = sorted((name for name in contract.TOPICS if not name.startswi
 #: The logger records a message on a sealed topic whose seal does not verify under the run's key on this prefix and
 #: its topic (``/nni_foreign/gen1/pmu``): apart, so that no reader takes a rogue's sample for the loop's.
 FOREIGN_PREFIX = "/nni_foreign"
+
+
+class ClockTicks:
+    """Which ``/clock`` ticks are the plant's, for a recorder holding the run's key.
+
+    ``rosgraph_msgs/Clock`` has no room for a seal, but in lockstep the plant sends one tick per measurement, at the
+    measurement's stamp, just after it. A tick is the loop's when a measurement of the same stamp was sealed by the
+    plant (:meth:`measured`, fed with every ``pmu`` that verified) and no tick of that stamp was taken before (a
+    tick holds nothing but its time: a rogue's copy of the next stamp is the same tick, once). It is foreign when it
+    cannot be the loop's: its stamp is not ahead of every sealed measurement and none had it (each ``pmu`` topic
+    arrives in order and carries every stamp), or no sealed measurement had it by the end (:meth:`rest`). Until
+    then it waits (at most ``memory`` ticks: a flood of future ticks beyond that is foreign, farthest first).
+    Each call returns the ticks it decided, ``[(item, is_loop)]``; ``item`` is what the caller keeps of the tick (a
+    recorder writes it with its own receive time, so a tick that waited keeps its place in the log). ``memory``
+    sealed stamps are remembered: a tick older than all of them is foreign (a rogue's replay). With ``plant_ticks``
+    False (a realtime run: the plant sends no tick) every tick is foreign."""
+
+    def __init__(self, memory: int = 4096, plant_ticks: bool = True):
+        self._memory = memory
+        self._plant_ticks = plant_ticks
+        self._stamps: dict[int, bool] = {}  # sealed measurement stamp -> a tick of it was taken
+        self._latest: int | None = None
+        self._pending: list[tuple[int, int, object]] = []  # heap of (stamp, arrival, item)
+        self._arrivals = 0
+
+    def _decide(self, stamp_ns: int, item) -> tuple:
+        loop = self._stamps.get(stamp_ns) is False
+        if loop:
+            self._stamps[stamp_ns] = True
+        return item, loop
+
+    def measured(self, stamp_ns: int) -> list:
+        if stamp_ns not in self._stamps:
+            self._stamps[stamp_ns] = False
+            if len(self._stamps) > 2 * self._memory:  # forget the oldest half at once: amortised O(1)
+                for old in list(itertools.islice(self._stamps, self._memory)):
+                    del self._stamps[old]
+        self._latest = stamp_ns if self._latest is None else max(self._latest, stamp_ns)
+        decided = []
+        while self._pending and self._pending[0][0] <= self._latest:
+            stamp, _, item = heapq.heappop(self._pending)
+            decided.append(self._decide(stamp, item))
+        return decided
+
+    def tick(self, stamp_ns: int, item) -> list:
+        if not self._plant_ticks:
+            return [(item, False)]
+        if stamp_ns in self._stamps or (self._latest is not None and stamp_ns < self._latest):
+            return [self._decide(stamp_ns, item)]
+        self._arrivals += 1
+        heapq.heappush(self._pending, (stamp_ns, self._arrivals, item))
+        if len(self._pending) <= 2 * self._memory:
+            return []
+        ordered = sorted(self._pending, key=lambda entry: entry[:2])
+        self._pending = ordered[:self._memory]  # sorted: a heap
+        return [(item, False) for _, _, item in ordered[self._memory:]]
+
+    def rest(self) -> list:
+        """At the end: the ticks still waiting, every one foreign (no sealed measurement had its stamp)."""
+        decided = [(item, False) for _, _, item in sorted(self._pending, key=lambda entry: entry[:2])]
+        self._pending = []
+        return decided
 
 
 def foreign_counts(recording: Recording) -> dict[str, int]:
