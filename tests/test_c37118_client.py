@@ -7,6 +7,7 @@ test uses loopback sockets. No ROS.
 
 from __future__ import annotations
 
+import dataclasses
 import socket
 import time
 
@@ -92,6 +93,44 @@ def test_a_new_connection_starts_afresh():
     _, replies = session.feed(CFG2 + data(1))
     assert commands(replies) == [c37.Command.DATA_ON]
     assert session.counters()["samples"] == 4
+
+
+def test_a_configuration_unlike_the_first_is_refused_and_ends_the_connection():
+    session = configured()
+    renamed = c37.Config(CONFIG.idcode, (dataclasses.replace(CONFIG.stations[0], name="rogue"), CONFIG.stations[1]),
+                         CONFIG.data_rate)
+    samples, replies = session.feed(data(1) + c37.encode_config(renamed, c37.FrameType.CFG2, EPOCH_NS) + data(2))
+    assert len(samples) == 2 and replies == [], "the frame before it is read, none after it"
+    assert session.refused.startswith("a configuration unlike the one this client took first")
+    assert session.config == CONFIG and session.counters()["rejected"] == {"config_changed": 1}
+    session.opening()  # a new connection: the same first configuration is taken again, the other is not
+    assert commands(session.feed(CFG2)[1]) == [c37.Command.DATA_ON] and session.refused is None
+
+
+def test_a_configuration_the_node_refuses_turns_no_data_on():
+    session = PdcSession(7, accept_config=lambda config: f"{len(config.stations)} stations, not 3")
+    session.opening()
+    assert session.feed(CFG2 + data(0)) == ([], [])
+    assert session.refused == "2 stations, not 3" and session.config is None
+    assert session.counters()["rejected"] == {"config_mismatch": 1}
+
+
+def test_the_client_drops_a_pmu_whose_configuration_it_refuses_and_says_why():
+    port = _free_port()
+    client = PdcClient("127.0.0.1", port, 7, lambda samples: None, accept_config=lambda config: "not ours",
+                       retry_initial_s=0.05, retry_max_s=0.05)
+    with PmuServer(CONFIG, "plant", port=port):
+        client.start()
+        try:
+            deadline = time.monotonic() + 10
+            while client.connections < 2:  # refused, dropped and tried again
+                assert time.monotonic() < deadline
+                time.sleep(0.01)
+        finally:
+            client.stop()
+    assert f"PMU 127.0.0.1:{port} went away (its configuration is refused: not ours); reconnecting in 0.05 s" \
+        in client.events()
+    assert client.counters()["rejected"]["config_mismatch"] >= 1 and client.counters()["samples"] == 0
 
 
 def _free_port() -> int:

@@ -100,3 +100,19 @@ def test_an_angle_step_its_frequency_does_not_explain_is_rejected_and_not_taken_
                                       frame(1, [0.1 + step + 0.09] * 2, frequency_hz=51.0))
     lenient = StationFeeds(2, lockstep=True)
     assert [len(lenient.take(samples, session.config, 1)) for samples in frames] == [2, 2]
+
+
+def test_a_configuration_without_the_node_s_stations_or_channels_is_named():
+    config = plant_config(2)
+    assert StationFeeds(2, lockstep=True, angle_phasor="EMF E'", power_analog="").config_fault(config) is None
+    assert StationFeeds(1, lockstep=True, angle_phasor="EMF E'", power_analog="").config_fault(config) is None
+    assert StationFeeds(3, lockstep=True, angle_phasor="EMF E'", power_analog="").config_fault(config) == \
+        "the stream has 2 station(s), this node maps 3 namespace(s)"
+    assert StationFeeds(2, lockstep=True, angle_phasor="rotor", power_analog="").config_fault(config) == \
+        "station 'G1 bus 31' has no phasor 'rotor'"
+    assert StationFeeds(2, lockstep=True, angle_phasor="", power_analog="P_E pu").config_fault(config) == \
+        "station 'G1 bus 31' has no analog 'P_E pu'"
+    status = StationFeeds(2, lockstep=True).status(
+        {"connected": True, "connections": 1, "connect_failures": 0, "samples": 0, "frames": {"cfg2": 1},
+         "rejected": {"config_mismatch": 1}})
+    assert status[:2] == ("ERROR", "rejected: config_mismatch (a configuration this node does not take)")

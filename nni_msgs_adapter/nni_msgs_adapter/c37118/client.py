@@ -14,6 +14,11 @@ under ``rejected`` by reason:
   configuration's; ``bad_fracsec``, ``bad_body``, ``wrong_type`` for a
   command frame, ...);
 * ``no_config``: a data frame before any configuration;
+* ``config_changed``: a configuration unlike the first one the session took (the session pins it: stations,
+  channels, FNOM, CFGCNT, rate; a PMU reconfigured on purpose needs a new session), and ``config_mismatch``: one
+  that ``accept_config(config)`` refuses (its text says why: the node's stations and channels are not there).
+  Either ends the connection (:attr:`PdcSession.refused` says why; :class:`PdcClient` reconnects after its
+  wait), and no data frame is read with it;
 * ``time_backwards`` and ``duplicate``: a data frame stamped before, or at,
   the last one accepted on this connection;
 * ``stale``: a data frame older than ``max_age_ns`` by ``clock_ns()`` when it
@@ -74,8 +79,11 @@ class PdcSession:
     """The client protocol of one stream (IDCODE ``idcode``), connection after connection, without sockets."""
 
     def __init__(self, idcode: int, *, max_age_ns: int | None = None, clock_ns=time.time_ns,
-                 max_frame_bytes: int = MAX_FRAME_BYTES):
+                 max_frame_bytes: int = MAX_FRAME_BYTES, accept_config=None):
         self.idcode = idcode
+        self._accept_config = accept_config
+        #: Why the last configuration was refused (its connection is to end), None while none was.
+        self.refused: str | None = None
         self.max_age_ns = max_age_ns
         self._clock_ns = clock_ns
         self.reader = FrameReassembler(max_frame_bytes)
@@ -103,6 +111,7 @@ class PdcSession:
         """What to send on a new connection: the CFG-2 request (the connection's state starts afresh)."""
         self.reader.finish()
         self._data_on, self._config_requested, self._last_instant_ns = False, True, None
+        self.refused = None
         return self._command(Command.SEND_CFG2)
 
     def closed(self) -> None:
@@ -125,10 +134,13 @@ class PdcSession:
         if head.idcode != self.idcode:
             raise FrameError("wrong_idcode", f"IDCODE {head.idcode}, expected {self.idcode}")
         if head.frame_type in CONFIG_TYPES:
-            self.config = decode_config(frame, self.idcode).config
+            config = decode_config(frame, self.idcode).config
+            add(self.frames, head.frame_type.name.lower())
+            if self._refuses(config):
+                return
+            self.config = config
             self._decoder = DataFrameDecoder(self.config)
             self._config_requested = False
-            add(self.frames, head.frame_type.name.lower())
             if not self._data_on:
                 self._data_on = True
                 replies.append(self._command(Command.DATA_ON))
@@ -140,7 +152,20 @@ class PdcSession:
         else:
             raise FrameError("wrong_type", f"a {head.frame_type.name} frame from the PMU")
 
+    def _refuses(self, config: Config) -> bool:
+        """Whether this session does not take ``config`` (counted, and :attr:`refused` set, if so)."""
+        if self.config is not None and config != self.config:
+            reason, self.refused = "config_changed", ("a configuration unlike the one this client took first (a PMU "
+                                                      "reconfigured on purpose needs the client restarted)")
+        else:
+            reason, self.refused = "config_mismatch", self._accept_config and self._accept_config(config)
+        if self.refused is not None:
+            add(self._rejected, reason)
+        return self.refused is not None
+
     def _data(self, frame: bytes, samples: list, replies: list) -> None:
+        if self.refused is not None:
+            return  # the connection is ending: nothing more of it is read
         if self._decoder is None:
             add(self._rejected, "no_config")
             return
@@ -172,12 +197,12 @@ class PdcClient:
     samples, from the client's thread."""
 
     def __init__(self, host: str, port: int, idcode: int, on_samples, *, max_age_ns: int | None = None,
-                 clock_ns=time.time_ns, retry_initial_s: float = RETRY_INITIAL_S, retry_max_s: float = RETRY_MAX_S,
+                 accept_config=None, clock_ns=time.time_ns, retry_initial_s: float = RETRY_INITIAL_S, retry_max_s: float = RETRY_MAX_S,
                  silence_timeout_s: float = SILENCE_TIMEOUT_S, connect_timeout_s: float = CONNECT_TIMEOUT_S):
         if not 0 < retry_initial_s <= retry_max_s:
             raise ValueError("the reconnect waits must satisfy 0 < initial <= max")
         self.host, self.port = host, port
-        self.session = PdcSession(idcode, max_age_ns=max_age_ns, clock_ns=clock_ns)
+        self.session = PdcSession(idcode, max_age_ns=max_age_ns, clock_ns=clock_ns, accept_config=accept_config)
         self._on_samples = on_samples
         self._retry_initial_s, self._retry_max_s = retry_initial_s, retry_max_s
         self._silence_timeout_s, self._connect_timeout_s = silence_timeout_s, connect_timeout_s
@@ -250,10 +275,12 @@ class PdcClient:
                         return "closed by the PMU"
                     heard_at = time.monotonic()
                     samples, replies = self.session.feed(data)
-                    for reply in replies:
-                        sock.sendall(reply)
                     if samples:
                         self._on_samples(samples)
+                    if self.session.refused is not None:
+                        return f"its configuration is refused: {self.session.refused}"
+                    for reply in replies:
+                        sock.sendall(reply)
             except OSError as error:
                 return f"connection lost: {error.strerror or error}"
         return "client stopped"

@@ -89,7 +89,8 @@ class C37118ClientNode(LoopNode):
         mode = command_auth.LOCKSTEP_FLAG if lockstep else command_auth.REALTIME_FLAG
         self._pubs = [StampedPublisher(self, contract.TOPIC_C37118_PMU, ns, key=key, flag=mode) for ns in namespaces]
         self._client = PdcClient(values["pmu_host"], values["pmu_port"], values["pmu_idcode"], self._on_samples,
-                                 max_age_ns=None if lockstep else round(values["max_age_s"] * 1e9))
+                                 max_age_ns=None if lockstep else round(values["max_age_s"] * 1e9),
+                                 accept_config=self._feeds.config_fault)
         self._where = f"{values['pmu_host']}:{values['pmu_port']} (IDCODE {values['pmu_idcode']})"
         self._ready_since, self._logged_at = None, -_WAIT_LOG_S
         self._start_timer = self.create_timer(_POLL_S, self._try_start)

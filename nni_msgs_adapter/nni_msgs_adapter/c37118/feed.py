@@ -19,9 +19,13 @@ carries (:data:`nni_msgs_adapter.ros.contract.TOPIC_C37118_PMU`):
 The stream's rejections are the client core's (:class:`~.client.PdcSession`:
 ``bad_crc``, ``bad_sync``, ``wrong_idcode``, ``bad_framesize``, ``oversized``,
 ``truncated``, ``invalid_data``, ``time_backwards``, ``duplicate``, ``stale``,
-...); the feeds add three of their own: ``missing_channel`` (a station without
-the named phasor or analog), ``unmapped_station`` (a station beyond the
-namespaces given) and ``implausible``: a sample whose angle step since the
+``config_changed``, ``config_mismatch``: a configuration unlike the first,
+or without a station per namespace with the named phasor and analog, which
+:meth:`StationFeeds.config_fault` tells the client to refuse, ...); the feeds
+add three of their own: ``missing_channel`` (a station without the named
+phasor or analog: not behind a client given :meth:`StationFeeds.config_fault`),
+``unmapped_station`` (a station beyond the namespaces given)
+and ``implausible``: a sample whose angle step since the
 station's last accepted one is not what its own frequency says, beyond
 ``plausible_step_rad``. IEEE C37.118.2 has no authentication, so this is the
 stream's check of consistency: the angle advances at the speed deviation, so from
@@ -103,6 +107,20 @@ class StationFeeds:
             power = _index([a.name for a in station.analogs], self.power_analog) if self.power_analog else _NO_ANALOG
             self._channels.append(None if angle is None or power is None else (angle, power))
 
+    def config_fault(self, config: Config) -> str | None:
+        """Why ``config`` is not the stream this node was set up for, or None: it must have a station for each
+        namespace, each of those with the named phasor and analog (the client refuses any other:
+        ``config_mismatch``). Stations beyond them are the PDC's others (counted ``unmapped_station``)."""
+        if len(config.stations) < self.count:
+            return f"the stream has {len(config.stations)} station(s), this node maps {self.count} namespace(s)"
+        for station in config.stations[:self.count]:
+            phasors, analogs = [p.name for p in station.phasors], [a.name for a in station.analogs]
+            if (self.angle_phasor and self.angle_phasor not in phasors) or (not self.angle_phasor and not phasors):
+                return f"station {station.name!r} has no phasor {self.angle_phasor or '(any)'!r}"
+            if self.power_analog and self.power_analog not in analogs:
+                return f"station {station.name!r} has no analog {self.power_analog!r}"
+        return None
+
     def take(self, samples, config: Config, connection: int) -> list[Measurement]:
         """The measurements of one frame's ``samples`` read with ``config`` on connection number ``connection``."""
         if config is not self._config:
@@ -156,6 +174,8 @@ class StationFeeds:
         if "implausible" in grew:
             return "ERROR", (f"rejected: {', '.join(grew)} (an angle step its frequency does not explain, beyond "
                              f"{self.plausible_step_rad:g} rad)"), values
+        if {"config_changed", "config_mismatch"} & set(grew):
+            return "ERROR", f"rejected: {', '.join(grew)} (a configuration this node does not take)", values
         if grew:
             return "WARN", f"rejected: {', '.join(grew)}", values
         return "OK", "receiving", values
