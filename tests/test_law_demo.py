@@ -28,7 +28,10 @@ from nni_plant_sim.cases import load_network
 from nni_plant_sim.model import SmibParams
 from nni_plant_sim.network_scenarios import BusFault
 from nni_plant_sim.scenarios import InitialAngle
+from nni_msgs_adapter.viewing.rerun_layout import CHARGE_ROOT
+from rerun.chunk import RrdReader
 from rosproc import busy_processes, fresh_domain_id, ros_env
+from test_demo import rrd_scalars
 
 pytestmark = pytest.mark.ros
 
@@ -86,7 +89,8 @@ def test_the_demo_runs_the_law_asked_for_as_offline_and_the_recording_says_which
 def test_the_demos_battery_of_finite_energy_runs_empty_in_the_plant_as_offline(tmp_path):
     """``nni-demo --battery-energy-pu-s``: the plant node's battery runs empty where the offline run's does, the
     recording equals the offline run to 1e-12 (the angle, and the power the battery gave: none once empty), and
-    the demo's line, summary.json and ``nni-replay --info`` say when it ran empty."""
+    the demo's line, summary.json and ``nni-replay --info`` say when it ran empty, and ``nni-replay --rrd`` draws
+    the charge as offline."""
     energy, duration = 0.05, 4.0
     offline = simulate_sampled(SmibParams(), ControllerParams(battery_limit_pu=B), InitialAngle(), duration, RATE_HZ,
                                battery_energy_pu_s=energy)
@@ -114,3 +118,17 @@ def test_the_demos_battery_of_finite_energy_runs_empty_in_the_plant_as_offline(t
     assert info.returncode == 0, info.stderr
     assert any(line.startswith("  battery charge: ") and f"empty at {offline.empty_at_s:.3f} s" in line
                for line in info.stdout.splitlines()), info.stdout
+    # The Rerun view draws the charge, in a view of its own: the offline run's to 1e-12 at every answered sample.
+    rrd = tmp_path / "run.rrd"
+    view = subprocess.run([str(BIN / "nni-replay"), str(recording), "--rrd", str(rrd)], capture_output=True,
+                          text=True, timeout=120)
+    assert view.returncode == 0, view.stderr
+    t, charge = rrd_scalars(rrd)[f"{CHARGE_ROOT}/b\\={B:g}"]
+    np.testing.assert_allclose(t, offline.t_s[:-1], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(charge, offline.charge_pu_s[:-1], rtol=0, atol=1e-12)
+    assert charge.min() == 0.0 and charge.max() == 2 * energy, "empty and full, as the plant's battery was"
+    reader = RrdReader(rrd)
+    origins = [chunk.to_record_batch().column("ViewBlueprint:space_origin").to_pylist()[-1][0]
+               for chunk in reader.stream(store=reader.blueprints()[0])
+               if "ViewBlueprint:space_origin" in chunk.to_record_batch().schema.names]
+    assert CHARGE_ROOT in origins, origins

@@ -36,6 +36,7 @@ from nni_msgs_adapter.recording.network_runs import CASE_KEY
 from nni_battery_controller.replay_load import PROG, load, readable_runs, recorded_network, warn
 from nni_msgs_adapter.recording.runs import GeneratorRun, run_metadata
 from nni_msgs_adapter.viewing.bridge_protocol import display_missing
+from nni_plant_sim.battery import charge_over
 
 #: Port of a Rerun viewer's gRPC server when a rerun+http URL names none (Rerun's default).
 DEFAULT_VIEWER_PORT = 9876
@@ -109,7 +110,12 @@ def phase_bounds(runs) -> tuple | None:
     return ((lo[0] - margin[0], hi[0] + margin[0]), (lo[1] - margin[1], hi[1] + margin[1]))
 
 
-def log_recording(stream, runs, f0_hz: float) -> None:
+def recorded_energy_pu_s(parameters: dict | None) -> float:
+    """The SMIB battery's energy as the recording's run parameters say, pu s (inf: unlimited, or not recorded)."""
+    return float(((parameters or {}).get("plant") or {}).get("battery_energy_pu_s", math.inf))
+
+
+def log_recording(stream, runs, f0_hz: float, energy_pu_s: float = math.inf) -> None:
     """Log generator runs on a Rerun stream (the blueprint is the caller's).
 
     The samples are those the controller answered, with the values the live bridge shows:
@@ -124,15 +130,20 @@ def log_recording(stream, runs, f0_hz: float) -> None:
         Runs with at least one answered sample (see :func:`viewable_runs`).
     f0_hz : float
         Nominal frequency, Hz (run parameters only; NaN when the recording does not say).
+    energy_pu_s : float
+        The battery's energy (finite: its charge is drawn, from the powers the plant's states say it gave,
+        :func:`nni_plant_sim.battery.charge_over`).
     """
     from nni_msgs_adapter.viewing.rerun_trajectory import log_trajectory
 
     for run in runs:
         answered = run.answered
         signals = {name: values[answered] for name, values in run.signals.items()}
+        charge = None if math.isinf(energy_pu_s) else \
+            np.asarray(charge_over(run.t_s, run.battery_power_pu, energy_pu_s))[answered]
         log_trajectory(stream, run_label(run), run.t_s[answered], signals["angle_dev"], run.speed_rad_s[answered],
                        signals["battery_power"], signals["saturated"], signals["w_hat"], run.battery_limit_pu,
-                       f0_hz, run.omega_boundary)
+                       f0_hz, run.omega_boundary, battery_charge_pu_s=charge)
 
 
 def log_network(stream, network) -> None:
@@ -196,11 +207,11 @@ def convert(args) -> int:
     from nni_msgs_adapter.viewing.rerun_stream import APP_ID, open_recording, recording_stream
 
     if network is None:
-        f0_hz = view_f0_hz(args, parameters)
-        layout = blueprint(phase_bounds=phase_bounds(runs))
+        f0_hz, energy_pu_s = view_f0_hz(args, parameters), recorded_energy_pu_s(parameters)
+        layout = blueprint(phase_bounds=phase_bounds(runs), battery_charge=not math.isinf(energy_pu_s))
 
         def log(stream) -> None:
-            log_recording(stream, runs, f0_hz)
+            log_recording(stream, runs, f0_hz, energy_pu_s)
     else:
         if args.f0_hz is not None:
             raise CliError(f"--f0-hz: {args.recording} is a run of case {parameters[CASE_KEY]} "

@@ -24,6 +24,22 @@ def battery_energy(value: float) -> float:
     return value
 
 
+def charge_over(t_s, powers_pu, energy_pu_s: float) -> list[float]:
+    """The charge (pu s from empty) at each instant of ``t_s`` of one battery of ``energy_pu_s``, from half charge,
+    that gives ``powers_pu[k]`` from ``t_s[k]`` to ``t_s[k + 1]``: the plant's recorded states, each carrying the
+    power the battery gives from that instant on (:meth:`EnergyStore.hold`, bounded at empty and full).
+
+    Exact where the recorded powers held over each period, as in lockstep: a battery that ran empty inside a period
+    ends it empty either way, and gives nothing after. In realtime a command applied inside a period is credited
+    from the period's start, off by its latency times the step of the power."""
+    store = EnergyStore([energy_pu_s])
+    charges = [store.charge_pu_s[0]]
+    for start, stop, power in zip(t_s[:-1], t_s[1:], powers_pu[:-1]):
+        store.hold([float(power)], float(start), float(stop))
+        charges.append(store.charge_pu_s[0])
+    return charges
+
+
 class EnergyStore:
     """The charge of each generator's battery, pu s from empty; each full at ``2 energy_pu_s``."""
 

@@ -67,6 +67,11 @@ SMIB_VIEW = ViewKind("/angle_deviation", "d (rad)", True)
 NETWORK_VIEW = ViewKind("/angle_coi", "δ-δ_COI (rad)", False)
 
 
+#: Where a run's battery charge goes (a battery of finite energy), and the name of its view.
+CHARGE_ROOT = "/battery_charge"
+CHARGE_VIEW_NAME = "Battery charge (pu s from empty; full at twice its energy)"
+
+
 class RunPaths(NamedTuple):
     """Entity paths of one labelled run (see the module docstring)."""
 
@@ -77,6 +82,7 @@ class RunPaths(NamedTuple):
     limit_lower: str
     saturation: str
     w_hat: str
+    charge: str
     trajectory: str
     omega_boundary: str
     parameters: str
@@ -107,6 +113,7 @@ def run_paths(label: str, kind: ViewKind = SMIB_VIEW) -> RunPaths:
         limit_lower=f"/battery/{part}/limit_lower",
         saturation=f"/saturation/{part}",
         w_hat=f"/w_hat/{part}",
+        charge=f"{CHARGE_ROOT}/{part}",
         trajectory=f"{PHASE_PATH}/{part}/trajectory",
         omega_boundary=f"{PHASE_PATH}/{part}/omega_boundary",
         parameters=f"/parameters/{part}",
@@ -117,6 +124,7 @@ def blueprint(
     timeline: str = "sim_time",
     phase_bounds: tuple[tuple[float, float], tuple[float, float]] | None = None,
     kind: ViewKind = SMIB_VIEW,
+    battery_charge: bool = False,
 ) -> rrb.Blueprint:
     """
     Build the viewer layout: five time-series views and the phase portrait (a network: four views).
@@ -131,6 +139,8 @@ def blueprint(
     kind : ViewKind
         :data:`SMIB_VIEW` (angle deviation, W_hat, phase portrait) or
         :data:`NETWORK_VIEW` (angles relative to the centre of inertia, no W_hat or phase portrait).
+    battery_charge : bool
+        Whether a view of the batteries' charge is added (runs with a battery of finite energy).
 
     Returns
     -------
@@ -150,11 +160,11 @@ def blueprint(
 
     panels = rrb.TimePanel(timeline=timeline, play_state="Following", state="Collapsed"), \
         rrb.BlueprintPanel(state="Collapsed"), rrb.SelectionPanel(state="Collapsed")
-    battery = rrb.Vertical(
-        series_view("/battery", "Battery power P_ST and limits +-b (pu)"),
-        series_view("/saturation", "Saturation (flag 0/1)", rrb.ScalarAxis(range=(-0.1, 1.1))),
-        row_shares=[2, 1],
-    )
+    battery_views = [series_view("/battery", "Battery power P_ST and limits +-b (pu)"),
+                     series_view("/saturation", "Saturation (flag 0/1)", rrb.ScalarAxis(range=(-0.1, 1.1)))]
+    if battery_charge:
+        battery_views.append(series_view(CHARGE_ROOT, CHARGE_VIEW_NAME))
+    battery = rrb.Vertical(*battery_views, row_shares=[2, 1, 1][:len(battery_views)])
     if not kind.phase_portrait:
         return rrb.Blueprint(
             rrb.Horizontal(

@@ -35,11 +35,13 @@ def begin_run(
     color: tuple[int, int, int] | None,
     kind: ViewKind,
     segment_samples: int,
+    charge: bool = False,
 ) -> RunPaths:
     """The start of a run, whole or live: its description checked, its statics logged, its entity paths.
 
     The statics are the run's line styles and legend names, its parameters, the Omega
-    boundary (closed) with the phase axes over it, and the y-flip (a SMIB run's).
+    boundary (closed) with the phase axes over it, and the y-flip (a SMIB run's); with ``charge``
+    the style of the battery's charge.
 
     Raises
     ------
@@ -80,6 +82,8 @@ def begin_run(
         paths.saturation: line("saturated (0/1)", step=True),
         paths.parameters: rr.AnyValues(b=b, f0_hz=f0_hz),
     }
+    if charge:
+        styles[paths.charge] = line("charge (pu s)")
     if kind.phase_portrait:
         styles[paths.w_hat] = line("W_hat (pu rad)")
         # Static colour and width apply to every (time-stamped) trajectory segment.

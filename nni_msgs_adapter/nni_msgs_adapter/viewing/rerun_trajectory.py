@@ -32,6 +32,7 @@ def log_trajectory(
     color: tuple[int, int, int] | None = None,
     segment_samples: int = PHASE_SEGMENT_SAMPLES,
     kind: ViewKind = SMIB_VIEW,
+    battery_charge_pu_s: np.ndarray | None = None,
 ) -> RunPaths:
     """
     Log a whole run column-wise (``send_columns``: fast for 1e4-1e5 samples).
@@ -71,6 +72,8 @@ def log_trajectory(
     kind : ViewKind
         :data:`SMIB_VIEW`, or :data:`NETWORK_VIEW` (``angle_dev_rad`` is then
         ``delta - delta_COI``; no phase portrait is drawn).
+    battery_charge_pu_s : numpy.ndarray or None
+        A battery of finite energy's charge (pu s from empty), shape ``(n,)``; None: none drawn.
 
     Returns
     -------
@@ -85,6 +88,8 @@ def log_trajectory(
         ``omega_boundary`` is not of shape ``(m, 2)``.
     """
     series = [t_s, angle_dev_rad, speed_dev_rad_s, battery_power_pu, saturated]
+    if battery_charge_pu_s is not None:
+        series.append(battery_charge_pu_s)
     if w_hat is not None:
         series.append(w_hat)
     series = [np.asarray(x, dtype=np.float64) for x in series]
@@ -92,7 +97,8 @@ def log_trajectory(
     if n == 0 or any(x.ndim != 1 or x.size != n for x in series):
         raise ValueError("sample arrays must be 1-D with one common non-zero length")
     t, d, d_dot, power, sat = series[:5]
-    paths = begin_run(recording, label, b, f0_hz, omega_boundary, color, kind, segment_samples)
+    paths = begin_run(recording, label, b, f0_hz, omega_boundary, color, kind, segment_samples,
+                      charge=battery_charge_pu_s is not None)
     last = _segment_ends(n, segment_samples)
 
     time = [rr.TimeColumn(timeline, duration=t)]
@@ -103,7 +109,9 @@ def log_trajectory(
         paths.saturation: sat,
     }
     if w_hat is not None:
-        values[paths.w_hat] = series[5]
+        values[paths.w_hat] = series[-1]
+    if battery_charge_pu_s is not None:
+        values[paths.charge] = series[5]
     for path, value in values.items():
         recording.send_columns(path, indexes=time, columns=rr.Scalars.columns(scalars=value))
     if math.isfinite(b):
