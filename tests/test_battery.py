@@ -92,6 +92,33 @@ def test_the_realtime_core_s_redo_of_a_piece_integrated_ahead_takes_the_charge_b
     assert loop.store.charge_pu_s == [pytest.approx(0.0015, abs=1e-15)] and loop.store.empty_at_s == [None]
 
 
+def test_a_networks_batteries_fill_exactly_their_room_and_then_absorb_nothing():
+    """Kundur's case, a battery of 0.05 pu s at each generator: the NNI law's first answers absorb; each battery is
+    full (at twice its energy) where the offline network run says, gives nothing into it after, and without a
+    finite energy the run is bit for bit the unlimited one's. More than one run at a time is refused."""
+    from nni_battery_controller.network_deployment import default_law
+    from nni_battery_controller.network_sim import simulate_network
+    from nni_plant_sim.cases import load_network
+    from nni_plant_sim.network_scenarios import BusFault
+
+    net = load_network("kundur_two_area")
+    run = lambda **energy: simulate_network(net, default_law(net), BusFault(net, 7, 0.1),  # noqa: E731
+                                            [np.full(4, 0.3)], 1.0, 50.0, **energy)
+    unlimited, limited = run(), run(battery_energy_pu_s=0.05)
+    assert np.array_equal(run(battery_energy_pu_s=math.inf).delta_rad, unlimited.delta_rad)
+    assert limited.charge_pu_s == pytest.approx((0.1,) * 4, abs=1e-15) and all(limited.full_at_s)
+    for i, full_at in enumerate(limited.full_at_s):
+        k = int(full_at * 50.0)  # the period it ran full in: absorbing until then, nothing after
+        assert np.all(limited.battery_power_pu[:k, i, 0] < 0) and np.all(limited.battery_power_pu[k + 1:, i, 0] >= 0)
+        # Its room, on the system base: what it absorbed up to then (each power held over its period).
+        absorbed = -np.sum(limited.battery_power_pu[:k, i, 0]) / 50.0 \
+            - limited.battery_power_pu[k, i, 0] * (full_at - k / 50.0)
+        assert absorbed == pytest.approx(0.05 * net.pu_of_machine(np.ones(4))[i], rel=1e-12)
+    with pytest.raises(ValueError, match="a battery of finite energy takes one run at a time, got 2"):
+        simulate_network(net, default_law(net), BusFault(net, 7, 0.1), [0.3, 0.2], 1.0, 50.0,
+                         battery_energy_pu_s=0.05)
+
+
 def test_compare_laws_says_which_laws_run_the_battery_empty(tmp_path):
     out = tmp_path / "cmp.json"
     done = subprocess.run([*SIMULATE, "--compare-laws", "--b", "0.3", "--battery-energy-pu-s", "0.1", "--duration",

@@ -86,6 +86,36 @@ def test_the_demo_runs_the_law_asked_for_as_offline_and_the_recording_says_which
     assert expected in info.stdout.splitlines(), info.stdout
 
 
+def test_the_network_demos_batteries_of_finite_energy_run_full_in_the_plant_as_offline(tmp_path):
+    """``nni-demo --case kundur_two_area --battery-energy-pu-s``: every generator's battery runs full (the NNI law's
+    first answers absorb) at the instant the offline network run's does, the machines lose step as offline without
+    the room to absorb, and the recording equals that offline run to 1e-12."""
+    energy, duration = 0.05, 2.0
+    net = load_network("kundur_two_area")
+    offline = simulate_network(net, default_law(net), BusFault(net, 7, 0.1), [np.full(4, B)], duration, RATE_HZ,
+                               battery_energy_pu_s=energy)
+    assert all(at is not None for at in offline.full_at_s), "the case runs every battery full"
+    domain = fresh_domain_id()
+    with busy_processes(2):
+        done = subprocess.run([str(BIN / "nni-demo"), "--case", "kundur_two_area", "--deployment", "composed", "--b",
+                               str(B), "--battery-energy-pu-s", str(energy), "--duration", str(duration),
+                               "--out", str(tmp_path), "--domain-id", str(domain)], env=ros_env(domain),
+                              capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    (recording,) = tmp_path.glob("*.mcap")
+    runs = list(generator_runs(read_recording(recording)).values())
+    scale = net.pu_of_machine(np.ones(4))
+    (summary,) = json.loads((tmp_path / "summary.json").read_text())["runs"]
+    for i, run in enumerate(runs):
+        np.testing.assert_allclose(run.delta_rad, offline.delta_rad[:, i, 0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(run.battery_power_pu[:-1] * scale[i], offline.battery_power_pu[:-1, i, 0],
+                                   rtol=0, atol=1e-12)
+        battery = summary["generators"][f"gen{i + 1}"]["battery"]
+        assert battery["full_at_s"] == pytest.approx(offline.full_at_s[i], abs=1e-12), battery
+        assert battery["charge_pu_s"] == pytest.approx(offline.charge_pu_s[i], abs=1e-12), battery
+        assert f"  /gen{i + 1}  battery full at {offline.full_at_s[i]:.3f} s" in done.stdout, done.stdout
+
+
 def test_the_demos_battery_of_finite_energy_runs_empty_in_the_plant_as_offline(tmp_path):
     """``nni-demo --battery-energy-pu-s``: the plant node's battery runs empty where the offline run's does, the
     recording equals the offline run to 1e-12 (the angle, and the power the battery gave: none once empty), and

@@ -282,3 +282,19 @@ def exit_status(prog: str, runs: list[dict], what: str) -> int:
     print(f"{prog}: error: {len(compromised)} of {len(runs)} run(s) compromised (b = {limits}): {what} not under "
           "its controller's command alone; see summary.json", file=sys.stderr)
     return EXIT_COMPROMISED
+
+
+def battery_block(energy_pu_s: float, summary: dict) -> dict:
+    """summary.json's ``battery`` of a generator whose battery holds ``energy_pu_s``: the plant's own account of it
+    (its exit summary for that generator: the charge at the end, when it ran empty and full)."""
+    return {"energy_pu_s": energy_pu_s, **{key: summary[f"battery_{key}"] for key in ("charge_pu_s", "empty_at_s",
+                                                                                         "full_at_s")
+                                           if f"battery_{key}" in summary}}
+
+
+def battery_text(battery: dict | None) -> str:
+    """``  battery empty at 1.234 s`` (or full, or neither) for a battery of finite energy; nothing without one."""
+    if battery is None:
+        return ""
+    ends = [f"{word} at {battery[f'{word}_at_s']:.3f} s" for word in ("empty", "full") if f"{word}_at_s" in battery]
+    return f"  battery {', '.join(ends) or 'never empty or full'}"

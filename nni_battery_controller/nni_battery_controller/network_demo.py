@@ -35,6 +35,8 @@ from nni_battery_controller.controller_config import parameters as controller_no
 from nni_battery_controller.demo_common import (
     COMPROMISED_PREFIX,
     TRUST_COUNTERS,
+    battery_block,
+    battery_text,
     check_complete,
     compromised_reasons,
     compromised_words,
@@ -81,7 +83,7 @@ from nni_battery_controller.network_deployment import (
     start_controllers,
 )
 from nni_battery_controller.network_sim import ANGLE_REFERENCES, assess_network, network_verdict
-from nni_battery_controller.options import add_network_law_options, network_laws_of
+from nni_battery_controller.options import add_energy_option, add_network_law_options, network_laws_of
 from nni_battery_controller.recorded_runs import network_trajectory
 from nni_battery_controller.study_common import software_version
 from nni_msgs_adapter.recording.runs import read_generator_runs
@@ -118,9 +120,6 @@ REFUSED = {
     **{flag: _SMIB_MODEL for flag in ("--H", "--D", "--P-M", "--P-max", "--f0")},
     **{flag: "it belongs to a scenario of the SMIB demo; a network runs --scenario bus_fault or line_trip"
        for flag in ("--delta0", "--speed0", "--fault-p-max")},
-    "--battery-energy-pu-s": "so far the SMIB demo's plant alone takes a battery of finite energy (the network "
-                             "plant node has the parameter, battery_energy_pu_s, but no offline network run to check "
-                             "it against)",
 }
 
 
@@ -155,6 +154,7 @@ def build_parser() -> OneLineParser:
                              "(relative to the centre of inertia: each controller reads every generator's PMU)")
     add_scenario_options(parser.add_argument_group("disturbance at t = 0 (as nni-simulate --case)"))
     add_network_law_options(parser)
+    add_energy_option(parser, "every generator's battery, in the network plant node")
     return parser
 
 
@@ -193,8 +193,9 @@ def network_plant_parameters(args, limits) -> dict:
     run, its stream; it waits for each pmu's readers (the Rerun and Foxglove bridges among them)."""
     viewers = (args.rerun is not None) + (getattr(args, "foxglove_address", None) is not None)
     readers = demo_c37118.plant_readers(args.measurements, pmu_readers(args.net, args.reference), viewers)
+    energy = {} if args.battery_energy_pu_s is None else {"battery_energy_pu_s": args.battery_energy_pu_s}
     return {**plant_parameters(args.case, args.scenario_values, args.mode, args.rate, args.duration, limits,
-                               readers), "wait_for_recorders": 1 + viewers, **args.stream}
+                               readers), "wait_for_recorders": 1 + viewers, **args.stream, **energy}
 
 
 def controllers_parameters(args, limits) -> dict:
@@ -336,6 +337,9 @@ def run_one(args, b: float, env: dict, bridge=None, index: int = 1):
                   "wall_time_s": round(wall_s, 3),
                   "generators": {ns: generator_result(g, loops[ns], counts, ns)
                                  for ns, g in zip(spaces, outcome_json["generators"])}}
+        if args.battery_energy_pu_s is not None:  # the plant's own account of each battery
+            for ns in spaces:
+                result["generators"][ns]["battery"] = battery_block(args.battery_energy_pu_s, loops[ns])
         if watch is not None:
             result["c37118"] = watch.summary()
         compromised = {ns: reasons for i, ns in enumerate(spaces)
@@ -389,6 +393,9 @@ def show_run(args, b: float, env: dict, bridge, index: int, plotted: list) -> di
     else:
         print(textwrap.indent(format_run(outcome, b, args.reference, net), "  "))
     print("\n".join(loop_table(result, net, limits) + clipped_lines(result, limits)))
+    for ns, generator in result["generators"].items():
+        if "battery" in generator:
+            print(f"  /{ns}{battery_text(generator['battery'])}")
     print(f"  wall {result['wall_time_s']:.1f} s, recording {result['recording']}")
     if "c37118" in result:
         print(summary_line(result["c37118"]))

@@ -26,6 +26,7 @@ import numpy as np
 
 from nni_battery_controller.law import ControllerParams, last_saturated
 from nni_battery_controller.laws import DEFAULT_LAW, SPEED_LAWS, ArrayLaw, Law
+from nni_plant_sim.battery import EnergyStore
 from nni_plant_sim.integrators import advance
 from nni_plant_sim.link import NO_LINK, DelayLine, Link, integrate_through
 from nni_plant_sim.network import Network, electrical_power
@@ -172,6 +173,11 @@ class NetworkTrajectory:
     w_pu: np.ndarray
     saturated: np.ndarray
     limits_pu: np.ndarray
+    #: A battery of finite energy (one run): each generator's charge at the end, pu s of its rating from empty, and
+    #: when each first ran empty and full (None: never); None without an energy limit.
+    charge_pu_s: tuple | None = None
+    empty_at_s: tuple | None = None
+    full_at_s: tuple | None = None
 
     def coi_angles(self) -> np.ndarray:
         """Angles relative to the centre of inertia, (n+1, N, R)."""
@@ -180,7 +186,8 @@ class NetworkTrajectory:
 
 
 def simulate_network(net: Network, law: NetworkLaw, scenario, limits_pu_mbase, duration_s: float, rate_hz: float,
-                     max_step_s: float = 1e-3, drop_lost_runs: bool = False, link: Link = NO_LINK) -> NetworkTrajectory:
+                     max_step_s: float = 1e-3, drop_lost_runs: bool = False, link: Link = NO_LINK,
+                     battery_energy_pu_s=math.inf) -> NetworkTrajectory:
     """R runs of the sampled-data closed loop; run r has battery limits ``limits_pu_mbase[r]`` (pu machine base).
 
     ``limits_pu_mbase`` is a sequence of R entries, each one value (every
@@ -199,6 +206,11 @@ def simulate_network(net: Network, law: NetworkLaw, scenario, limits_pu_mbase, d
     batch; the network is integrated piecewise between those instants, as the
     network plant's reporting core does. ``battery_power_pu`` is then the
     power in force at each sample.
+
+    ``battery_energy_pu_s`` (one value or N, pu s of each machine's rating; finite: one run only): each battery
+    starts at half charge with that much to deliver and as much room to absorb, and gives nothing once empty (or
+    takes nothing once full), through the plant's :class:`~nni_plant_sim.battery.EnergyStore` on the system base;
+    ``battery_power_pu`` is then what each battery gives.
     """
     if not (math.isfinite(rate_hz) and rate_hz > 0):
         raise ValueError(f"controller rate must be finite and positive, got {rate_hz}")
@@ -218,18 +230,26 @@ def simulate_network(net: Network, law: NetworkLaw, scenario, limits_pu_mbase, d
     shape = (n + 1, net.size, runs)
     delta, speed, power, w, saturated = (np.full(shape, np.nan) for _ in range(5))
     active = np.arange(runs)
-    line = DelayLine(link, list(np.zeros((net.size, runs))))
+    energies = per_generator(battery_energy_pu_s, net.size, "battery energy")
+    store = None
+    if np.any(np.isfinite(energies)):
+        if runs != 1:
+            raise ValueError(f"a battery of finite energy takes one run at a time, got {runs}")
+        store = EnergyStore(list(net.pu_of_machine(energies)))  # the powers on the line are on the system base
+    line = DelayLine(link, [0.0] * net.size if store is not None else list(np.zeros((net.size, runs))), store=store)
 
     def piece(start, stop, x, powers):
-        return advance(start, stop, x, np.array(powers), net, scenario, max_step_s)
+        powers = np.array(powers)
+        return advance(start, stop, x, powers if store is None else powers[:, None], net, scenario, max_step_s)
 
     for k in range(n + 1):
         measured = electrical_power(x[0], scenario.network(t[k], net)[1])
         delta[k][:, active], speed[k][:, active] = x
         step = controller.step(x[0], measured, x[1])
         for i in range(net.size):
-            line.send(i, k, float(t[k]), step[0][i], float(t[k]))
-        power[k][:, active], w[k][:, active], saturated[k][:, active] = np.array(line.powers), step[1], step[2]
+            line.send(i, k, float(t[k]), step[0][i] if store is None else float(step[0][i][0]), float(t[k]))
+        power[k][:, active] = np.array(line.applied_powers()).reshape(net.size, -1)  # without a store: in force
+        w[k][:, active], saturated[k][:, active] = step[1], step[2]
         if drop_lost_runs and np.any(lost := angle_spread(x[0][None])[0] > POLE_SLIP_RAD):
             keep = ~lost
             if not keep.any():  # every run decided (a scenario narrowed to none is no scenario)
@@ -240,7 +260,12 @@ def simulate_network(net: Network, law: NetworkLaw, scenario, limits_pu_mbase, d
             scenario = scenario.narrowed(keep)
         if k < n:
             x = integrate_through(line, piece, float(t[k]), float(t[k + 1]), x)
-    return NetworkTrajectory(net, t, delta, speed, power, w, saturated == 1.0, limits)
+    if store is None:
+        return NetworkTrajectory(net, t, delta, speed, power, w, saturated == 1.0, limits)
+    scale = net.pu_of_machine(np.ones(net.size))
+    return NetworkTrajectory(net, t, delta, speed, power, w, saturated == 1.0, limits,
+                             tuple(float(c) for c in np.asarray(store.charge_pu_s) / scale),
+                             tuple(store.empty_at_s), tuple(store.full_at_s))
 
 
 @dataclass(frozen=True)

@@ -38,6 +38,8 @@ from nni_battery_controller import demo_c37118, demo_foxglove
 from nni_battery_controller.demo_foxglove import add_foxglove_option
 from nni_battery_controller.controller_config import parameters as controller_node_parameters
 from nni_battery_controller.demo_common import (
+    battery_block,
+    battery_text,
     check_complete,
     compromised_reasons,
     compromised_text,
@@ -258,9 +260,7 @@ def run_one(args, b: float, env: dict, out: Path, bridge=None, index: int = 0) -
             "logger_counts": counts,
         })
         if args.battery_energy_pu_s is not None:  # the plant's own account of its battery
-            outcome["battery"] = {"energy_pu_s": args.battery_energy_pu_s,
-                                  **{key: summary[f"battery_{key}"] for key in ("charge_pu_s", "empty_at_s", "full_at_s")
-                                     if f"battery_{key}" in summary}}
+            outcome["battery"] = battery_block(args.battery_energy_pu_s, summary)
         if watch is not None:
             outcome["c37118"] = watch.summary()
         reasons = compromised_reasons(summary, run, b)
@@ -292,14 +292,6 @@ def run_all(args, env: dict, bridge=None) -> tuple[list[dict], list[Trajectory]]
         if "c37118" in run:
             print(summary_line(run["c37118"]))
     return runs, trajectories
-
-
-def battery_text(battery: dict | None) -> str:
-    """``  battery empty at 1.234 s`` (or full, or neither) for a battery of finite energy; nothing without one."""
-    if battery is None:
-        return ""
-    ends = [f"{word} at {battery[f'{word}_at_s']:.3f} s" for word in ("empty", "full") if f"{word}_at_s" in battery]
-    return f"  battery {', '.join(ends) or 'never empty or full'}"
 
 
 def parse_arguments(parser: OneLineParser, argv=None) -> argparse.Namespace:
