@@ -88,8 +88,8 @@ def test_the_demo_runs_the_law_asked_for_as_offline_and_the_recording_says_which
 
 def test_the_network_demos_batteries_of_finite_energy_run_full_in_the_plant_as_offline(tmp_path):
     """``nni-demo --case kundur_two_area --battery-energy-pu-s``: every generator's battery runs full (the NNI law's
-    first answers absorb) at the instant the offline network run's does, the machines lose step as offline without
-    the room to absorb, and the recording equals that offline run to 1e-12."""
+    first answers absorb) at the instant the offline network run's does, and the recording equals that offline run
+    to 1e-12."""
     energy, duration = 0.05, 2.0
     net = load_network("kundur_two_area")
     offline = simulate_network(net, default_law(net), BusFault(net, 7, 0.1), [np.full(4, B)], duration, RATE_HZ,
