@@ -430,6 +430,12 @@ def test_the_launch_file_runs_the_law_asked_for_with_its_gains(network_launch):
     assert {node["parameters"]["law"] for node in default[1:-1]} == {"nni"}
 
 
+def test_the_launch_file_gives_the_plant_a_battery_of_finite_energy_on_request(network_launch):
+    assert network_launch.network_nodes({})[-1]["parameters"]["battery_energy_pu_s"] == float("inf")
+    plant = network_launch.network_nodes({"battery_energy_pu_s": "0.05"})[-1]
+    assert plant["executable"] == "network_plant_node" and plant["parameters"]["battery_energy_pu_s"] == 0.05
+
+
 def test_the_launch_file_feeds_the_controllers_through_c37118_on_request(network_launch):
     nodes = network_launch.network_nodes({"case": "kundur_two_area", "measurements": "c37118", "pmu_port": "4800"})
     kinds = [(n["package"], n["executable"]) for n in nodes]

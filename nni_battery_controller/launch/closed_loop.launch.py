@@ -52,6 +52,7 @@ from nni_msgs_adapter.ros.defaults import load_defaults
 PLANT_ARGUMENTS = (
     "mode", "pmu_rate_hz", "duration_s", "scenario", "delta0_rad", "speed0_rad_s", "step_p_mech_pu",
     "step_duration_s", "fault_p_max_pu", "clearing_time_s", "damping_pu", "pmu_port", "pmu_host", "pmu_idcode",
+    "battery_energy_pu_s",
 )
 #: Launch arguments that are controller parameters (package nni_battery_controller, config/controller.yaml).
 CONTROLLER_ARGUMENTS = ("law", "tau_s", "gain_k", "gain_l", "alpha", "battery_limit_pu")

@@ -75,6 +75,8 @@ RUN_ARGUMENTS = {
     "pmu_rate_hz": ("50.0", "PMU reporting rate, frames/s (and the controllers' sampling rate)"),
     "battery_limit_pu": ("0.1", "every generator's battery limit b, pu of its rating (.inf: unlimited)"),
     "gen_b": ("", "per-generator limits instead, 'I=B ...' (I: 1.. as in /gen<I>)"),
+    "battery_energy_pu_s": (".inf", "every generator's battery energy, pu s of its rating, from half charge (as much "
+                                    "room to absorb; .inf: unlimited)"),
     "law": (None, "the battery law at every generator: nni, nni-unsaturated, droop, vsm or pss (a speed law with its "
                   "gains from config/controller.yaml)"),
     "tau_s": (None, "tau, s, at every generator"),
@@ -211,7 +213,8 @@ def network_nodes(given: dict) -> list[dict]:
         "case": case, "b": limits.tolist(), "law": law_name, "scenario": scenario["scenario"], "mode": values["mode"]})
     plant = {**plant_parameters(case, scenario, values["mode"], rate, float(_value(values["duration_s"])), limits,
                                 plant_readers(measurements, 2, bridge is not None)),
-             "wait_for_recorders": 1 + (bridge is not None), **stream}  # on plant/state: the logger and the bridge
+             "wait_for_recorders": 1 + (bridge is not None), **stream,  # on plant/state: the logger and the bridge
+             "battery_energy_pu_s": float(_value(values["battery_energy_pu_s"]))}
     nodes = [{"package": LOGGER[0], "executable": LOGGER[1], "name": "mcap_logger", "namespace": "",
               "parameters": {"output_path": values["output_path"]}}]
     nodes += [{"package": CONTROLLER[0], "executable": CONTROLLER[1], "name": "controller", "namespace": ns,
