@@ -167,8 +167,9 @@ def assert_views_hold_the_recording(chunks: dict, recording: Path, b: float) -> 
     run = read_generator_run(recording)
     paths = run_paths("b=inf" if math.isinf(b) else f"b={b:g}")
     answered = run.answered
-    drawn = set(paths) - ({paths.limit_upper, paths.limit_lower} if math.isinf(b) else set())
+    drawn = set(paths) - ({paths.limit_upper, paths.limit_lower} if math.isinf(b) else set()) - {paths.charge}
     assert drawn <= set(chunks), sorted(drawn - set(chunks))
+    assert paths.charge not in chunks, "an unlimited battery has no charge to draw"
     assert (paths.limit_upper in chunks) == math.isfinite(b), "+-b drawn for a finite battery only"
     expected = {
         paths.angle: run.signals["angle_dev"][answered],
