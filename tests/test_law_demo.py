@@ -114,6 +114,18 @@ def test_the_network_demos_batteries_of_finite_energy_run_full_in_the_plant_as_o
         assert battery["full_at_s"] == pytest.approx(offline.full_at_s[i], abs=1e-12), battery
         assert battery["charge_pu_s"] == pytest.approx(offline.charge_pu_s[i], abs=1e-12), battery
         assert f"  /gen{i + 1}  battery full at {offline.full_at_s[i]:.3f} s" in done.stdout, done.stdout
+    # The Rerun view of the recording draws each battery's charge: full (2E) from the first sample after the
+    # offline run's full instant on, and what the plant's summary says at the end.
+    rrd = tmp_path / "run.rrd"
+    view = subprocess.run([str(BIN / "nni-replay"), str(recording), "--rrd", str(rrd)], capture_output=True,
+                          text=True, timeout=120)
+    assert view.returncode == 0, view.stderr
+    series = rrd_scalars(rrd)
+    for i in range(4):
+        t, charge = series[f"{CHARGE_ROOT}/gen{i + 1}"]
+        assert np.all(charge[t <= offline.full_at_s[i]] < 2 * energy)
+        np.testing.assert_allclose(charge[t > offline.full_at_s[i]], 2 * energy, rtol=0, atol=1e-12)
+        assert charge[-1] == pytest.approx(offline.charge_pu_s[i], abs=1e-12)
 
 
 def test_the_demos_battery_of_finite_energy_runs_empty_in_the_plant_as_offline(tmp_path):

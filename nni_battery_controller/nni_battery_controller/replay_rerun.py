@@ -111,8 +111,15 @@ def phase_bounds(runs) -> tuple | None:
 
 
 def recorded_energy_pu_s(parameters: dict | None) -> float:
-    """The SMIB battery's energy as the recording's run parameters say, pu s (inf: unlimited, or not recorded)."""
-    return float(((parameters or {}).get("plant") or {}).get("battery_energy_pu_s", math.inf))
+    """The batteries' energy as the recording's run parameters say (the SMIB plant's or the network plant's, one
+    for every generator), pu s of each machine's rating (inf: unlimited, or not recorded)."""
+    plant = (parameters or {}).get("plant") or (parameters or {}).get("network_plant") or {}
+    return float(plant.get("battery_energy_pu_s", math.inf))
+
+
+def recorded_charge(t_s, given_pu, answered, energy_pu_s: float):
+    """A battery's charge at the ``answered`` instants from the powers it gave (None for an unlimited one)."""
+    return None if math.isinf(energy_pu_s) else np.asarray(charge_over(t_s, given_pu, energy_pu_s))[answered]
 
 
 def log_recording(stream, runs, f0_hz: float, energy_pu_s: float = math.inf) -> None:
@@ -139,18 +146,18 @@ def log_recording(stream, runs, f0_hz: float, energy_pu_s: float = math.inf) -> 
     for run in runs:
         answered = run.answered
         signals = {name: values[answered] for name, values in run.signals.items()}
-        charge = None if math.isinf(energy_pu_s) else \
-            np.asarray(charge_over(run.t_s, run.battery_power_pu, energy_pu_s))[answered]
+        charge = recorded_charge(run.t_s, run.battery_power_pu, answered, energy_pu_s)
         log_trajectory(stream, run_label(run), run.t_s[answered], signals["angle_dev"], run.speed_rad_s[answered],
                        signals["battery_power"], signals["saturated"], signals["w_hat"], run.battery_limit_pu,
                        f0_hz, run.omega_boundary, battery_charge_pu_s=charge)
 
 
-def log_network(stream, network) -> None:
+def log_network(stream, network, energy_pu_s: float = math.inf) -> None:
     """Log a network run on a Rerun stream, generator by generator (label ``gen<i>``), in the network layout.
 
     Each generator's samples are the instants its controller answered (as for a SMIB run),
-    its angle relative to the centre of inertia of every generator's angle at that instant.
+    its angle relative to the centre of inertia of every generator's angle at that instant; with a finite
+    ``energy_pu_s`` (every battery's) its battery's charge.
     """
     from nni_msgs_adapter.viewing.palette import generator_colour_rgb
     from nni_msgs_adapter.viewing.rerun_layout import NETWORK_VIEW
@@ -165,7 +172,9 @@ def log_network(stream, network) -> None:
         log_trajectory(stream, namespace.lstrip("/"), network.t_s[answered], angles[answered, i],
                        network.speed_rad_s[answered, i], network.commanded_power_pu[answered, i],
                        network.saturated[answered, i], None, float(network.limits_pu[i]), float(network.net.f0_hz),
-                       color=generator_colour_rgb(i), kind=NETWORK_VIEW)
+                       color=generator_colour_rgb(i), kind=NETWORK_VIEW,
+                       battery_charge_pu_s=recorded_charge(network.t_s, network.battery_power_pu[:, i], answered,
+                                                           energy_pu_s))
 
 
 def viewable_runs(path, runs: dict[str, GeneratorRun]) -> list[GeneratorRun]:
@@ -206,8 +215,9 @@ def convert(args) -> int:
     from nni_msgs_adapter.viewing.rerun_layout import NETWORK_VIEW, blueprint
     from nni_msgs_adapter.viewing.rerun_stream import APP_ID, open_recording, recording_stream
 
+    energy_pu_s = recorded_energy_pu_s(parameters)
     if network is None:
-        f0_hz, energy_pu_s = view_f0_hz(args, parameters), recorded_energy_pu_s(parameters)
+        f0_hz = view_f0_hz(args, parameters)
         layout = blueprint(phase_bounds=phase_bounds(runs), battery_charge=not math.isinf(energy_pu_s))
 
         def log(stream) -> None:
@@ -216,10 +226,10 @@ def convert(args) -> int:
         if args.f0_hz is not None:
             raise CliError(f"--f0-hz: {args.recording} is a run of case {parameters[CASE_KEY]} "
                            f"(f0 = {network.net.f0_hz:g} Hz); the option only labels recordings without run parameters")
-        layout = blueprint(kind=NETWORK_VIEW)
+        layout = blueprint(kind=NETWORK_VIEW, battery_charge=not math.isinf(energy_pu_s))
 
         def log(stream) -> None:
-            log_network(stream, network)
+            log_network(stream, network, energy_pu_s)
     if args.rrd is not None:
         # In memory first, so that the .rrd appears whole or not at all (atomic rename).
         stream = recording_stream()
