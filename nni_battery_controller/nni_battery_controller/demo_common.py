@@ -287,9 +287,9 @@ def exit_status(prog: str, runs: list[dict], what: str) -> int:
 def battery_block(energy_pu_s: float, summary: dict) -> dict:
     """summary.json's ``battery`` of a generator whose battery holds ``energy_pu_s``: the plant's own account of it
     (its exit summary for that generator: the charge at the end, when it ran empty and full)."""
-    return {"energy_pu_s": energy_pu_s, **{key: summary[f"battery_{key}"] for key in ("charge_pu_s", "empty_at_s",
-                                                                                         "full_at_s")
-                                           if f"battery_{key}" in summary}}
+    reported = {key: summary[f"battery_{key}"] for key in ("charge_pu_s", "empty_at_s", "full_at_s")
+                if f"battery_{key}" in summary}
+    return {"energy_pu_s": energy_pu_s, **reported}
 
 
 def battery_text(battery: dict | None) -> str:

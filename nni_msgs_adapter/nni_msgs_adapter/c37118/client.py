@@ -197,8 +197,8 @@ class PdcClient:
     samples, from the client's thread."""
 
     def __init__(self, host: str, port: int, idcode: int, on_samples, *, max_age_ns: int | None = None,
-                 accept_config=None, clock_ns=time.time_ns, retry_initial_s: float = RETRY_INITIAL_S, retry_max_s: float = RETRY_MAX_S,
-                 silence_timeout_s: float = SILENCE_TIMEOUT_S, connect_timeout_s: float = CONNECT_TIMEOUT_S):
+                 accept_config=None, clock_ns=time.time_ns, retry_initial_s: float = RETRY_INITIAL_S,
+                 retry_max_s: float = RETRY_MAX_S, silence_timeout_s: float = SILENCE_TIMEOUT_S, connect_timeout_s: float = CONNECT_TIMEOUT_S):
         if not 0 < retry_initial_s <= retry_max_s:
             raise ValueError("the reconnect waits must satisfy 0 < initial <= max")
         self.host, self.port = host, port

@@ -98,13 +98,19 @@ class StationFeeds:
         self._connection = None
         self._reported: dict[str, int] = {}
 
+    def _channels_of(self, station) -> tuple[int | None, int | None]:
+        """The indexes of ``station``'s named phasor and analog (:data:`_NO_ANALOG` when none is named), each None
+        if the station has no such channel."""
+        phasors = [p.name for p in station.phasors]
+        angle = _index(phasors, self.angle_phasor) if self.angle_phasor else (0 if phasors else None)
+        power = _index([a.name for a in station.analogs], self.power_analog) if self.power_analog else _NO_ANALOG
+        return angle, power
+
     def _configure(self, config: Config) -> None:
         """Which phasor and analog of each station (None: a station without the named phasor or analog)."""
         self._config, self._channels = config, []
         for station in config.stations:
-            phasors = [p.name for p in station.phasors]
-            angle = _index(phasors, self.angle_phasor) if self.angle_phasor else (0 if phasors else None)
-            power = _index([a.name for a in station.analogs], self.power_analog) if self.power_analog else _NO_ANALOG
+            angle, power = self._channels_of(station)
             self._channels.append(None if angle is None or power is None else (angle, power))
 
     def config_fault(self, config: Config) -> str | None:
@@ -114,10 +120,10 @@ class StationFeeds:
         if len(config.stations) < self.count:
             return f"the stream has {len(config.stations)} station(s), this node maps {self.count} namespace(s)"
         for station in config.stations[:self.count]:
-            phasors, analogs = [p.name for p in station.phasors], [a.name for a in station.analogs]
-            if (self.angle_phasor and self.angle_phasor not in phasors) or (not self.angle_phasor and not phasors):
+            angle, power = self._channels_of(station)
+            if angle is None:
                 return f"station {station.name!r} has no phasor {self.angle_phasor or '(any)'!r}"
-            if self.power_analog and self.power_analog not in analogs:
+            if power is None:
                 return f"station {station.name!r} has no analog {self.power_analog!r}"
         return None
 

@@ -221,18 +221,20 @@ class McapLogger(Node):
             received_ns, data, message_info = message
             writer.write(channel if loop else apart(), data, received_ns, message_info["source_timestamp"])
 
-        if name == contract.TOPIC_CLOCK and self._ticks is not None:
+        # With the key, /clock's ticks wait in self._ticks for the sealed measurements that pmu topics feed it.
+        ticks = self._ticks if name == contract.TOPIC_CLOCK else None
+        measures = self._ticks if name == contract.TOPIC_PMU else None
+        if ticks is not None:
             self._put_tick = put
 
         def record(message: tuple) -> None:
             data = message[1]
-            if name == contract.TOPIC_CLOCK and self._ticks is not None:
-                decided = self._ticks.tick(header_stamp_ns(data), message)
+            if ticks is not None:
+                decided = ticks.tick(header_stamp_ns(data), message)
             else:
                 loop = check.loops(data)
                 put(message, loop)
-                decided = self._ticks.measured(header_stamp_ns(data)) \
-                    if loop and name == contract.TOPIC_PMU and self._ticks is not None else ()
+                decided = measures.measured(header_stamp_ns(data)) if loop and measures is not None else ()
             for tick, loop in decided:
                 self._put_tick(tick, loop)
 
