@@ -221,15 +221,24 @@ def test_rerun_serve_prints_a_localhost_url_and_binds_to_localhost(tmp_path):
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGKILL])
 def test_killed_demo_leaves_no_process_running(tmp_path, signum):
     domain = fresh_domain_id()
-    demo = subprocess.Popen([str(DEMO), "--mode", "realtime", "--b", "0.3", "--duration", "60", "--out",
-                             str(tmp_path), "--domain-id", str(domain)], env=ros_env(domain),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    printed = tmp_path / "demo.out"
+    with printed.open("w") as out:
+        demo = subprocess.Popen([str(DEMO), "--mode", "realtime", "--b", "0.3", "--duration", "60", "--out",
+                                 str(tmp_path), "--domain-id", str(domain)], env=ros_env(domain),
+                                stdout=out, stderr=subprocess.STDOUT)
     deadline = time.monotonic() + 60
     while len(processes_in_domain(domain)) < 3 and time.monotonic() < deadline:
         time.sleep(0.2)
     assert len(processes_in_domain(domain)) == 3, "logger, controller and plant should be running"
     demo.send_signal(signum)
-    demo.wait(timeout=60)
+    try:
+        demo.wait(timeout=60)
+    except subprocess.TimeoutExpired:  # say where it stuck: what it printed, what each child logged last
+        demo.kill()
+        logs = {path.name: path.read_text(errors="replace")[-400:] for path in tmp_path.rglob("*.log")}
+        pytest.fail(f"the demo did not exit within 60 s of {signal.Signals(signum).name}: "
+                    f"{printed.read_text(errors='replace')[-800:]!r}; children: {logs}; "
+                    f"left in its domain: {processes_in_domain(domain)}")
     deadline = time.monotonic() + 30
     while processes_in_domain(domain) and time.monotonic() < deadline:
         time.sleep(0.2)
